@@ -1,0 +1,172 @@
+"""Typed descriptors that plugins register through the hooks of :mod:`weldcell.sdk.hookspecs`.
+
+Every descriptor has a ``category`` (stage, device, job, exporter, command), a ``kind`` inside it
+(e.g. a stage of kind ``seam``, a device of kind ``robot``), a dotted ``name`` that profiles use
+(``seam.edge-intensity``, ``robot.ur-rtde``), a pydantic ``settings`` model, and optional
+``requires``: Python modules mapped to the weldcell extra that installs them. Descriptors hold
+factories, never device connections: importing a plugin must not touch hardware.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from weldcell.sdk.errors import MissingExtraError, PluginError
+from weldcell.sdk.settings import NoSettings, Settings
+
+NAME_RE = re.compile(r"^[a-z][a-z0-9]*(?:[-_][a-z0-9]+)*(?:\.[a-z0-9]+(?:[-_][a-z0-9]+)*)+$")
+
+DEVICE_KINDS = (
+    "robot",
+    "depth_camera",
+    "gesture_sensor",
+    "displacement_sensor",
+    "laser_projector",
+    "tactile_camera",
+    "imu",
+    "gnss",
+)
+
+
+@dataclass(frozen=True)
+class Descriptor:
+    """Common fields of everything a plugin registers."""
+
+    name: str
+    kind: str
+    summary: str
+    settings: type[Settings] = NoSettings
+    requires: dict[str, str] = field(default_factory=dict)
+    """Python module -> weldcell extra, e.g. ``{"rtde_control": "ur"}``."""
+
+    category: ClassVar[str] = "thing"
+
+    def __post_init__(self) -> None:
+        if not NAME_RE.match(self.name):
+            raise PluginError(
+                f"{self.category} name {self.name!r} is not a dotted lower-case name",
+                "name things like 'seam.edge-intensity' or 'robot.ur-rtde'",
+            )
+        if not (isinstance(self.settings, type) and issubclass(self.settings, Settings)):
+            raise PluginError(
+                f"{self.category} {self.name!r}: settings must be a weldcell.sdk.settings.Settings subclass",
+                "derive the settings model from weldcell.sdk.settings.Settings",
+            )
+
+    def missing_extras(self) -> list[tuple[str, str]]:
+        """(module, extra) pairs whose module cannot be imported here."""
+        missing = []
+        for module, extra in self.requires.items():
+            try:
+                found = importlib.util.find_spec(module) is not None
+            except (ImportError, ValueError):
+                found = False
+            if not found:
+                missing.append((module, extra))
+        return missing
+
+    def check_available(self) -> None:
+        """Raise :class:`MissingExtraError` naming the extra when a required module is missing."""
+        for module, extra in self.missing_extras():
+            raise MissingExtraError(f"{self.category} '{self.name}'", module, extra)
+
+
+@dataclass(frozen=True)
+class StageSpec(Descriptor):
+    """A method: ``factory(settings) -> stage object`` whose interface is fixed by ``kind``.
+
+    Stage kinds and their call signatures are documented in :mod:`weldcell.sdk.stages`.
+    """
+
+    factory: Callable[[Any], Any] | None = None
+    category: ClassVar[str] = "stage"
+
+
+@dataclass(frozen=True)
+class DeviceSpec(Descriptor):
+    """A device adapter: ``factory(settings, context) -> Device`` of HAL kind ``kind``.
+
+    ``kind`` is one of :data:`DEVICE_KINDS`. ``simulated`` marks the simulated cell's devices.
+    ``probe(settings) -> str`` (optional) says whether the device is reachable, for ``weldcell devices``;
+    it raises :class:`weldcell.sdk.errors.DeviceError` when it is not.
+    """
+
+    factory: Callable[..., Any] | None = None
+    simulated: bool = False
+    probe: Callable[[Any], str] | None = None
+    category: ClassVar[str] = "device"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.kind not in DEVICE_KINDS:
+            raise PluginError(
+                f"device {self.name!r} has unknown kind {self.kind!r}",
+                f"use one of {', '.join(DEVICE_KINDS)}",
+            )
+
+
+@dataclass(frozen=True)
+class DeviceRole:
+    """A device a job uses: profiles bind a device to each role under ``[devices.<role>]``."""
+
+    role: str
+    kind: str
+    summary: str
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class StageRole:
+    """A method slot of a job, filled by a stage plugin of ``kind`` (``default`` when the profile is silent)."""
+
+    role: str
+    kind: str
+    default: str
+    summary: str
+
+
+@dataclass(frozen=True)
+class JobSpec(Descriptor):
+    """A job (``scan-and-plan``, ``calibrate``, ...): ``run(ctx) -> dict`` of result figures.
+
+    ``devices`` and ``stages`` declare the roles a profile fills. The job name is a plain
+    lower-case name (``scan-and-plan``) rather than a dotted one.
+    """
+
+    run: Callable[[Any], dict] | None = None
+    devices: tuple[DeviceRole, ...] = ()
+    stages: tuple[StageRole, ...] = ()
+    category: ClassVar[str] = "job"
+
+    def __post_init__(self) -> None:
+        if not re.match(r"^[a-z][a-z0-9-]*$", self.name):
+            raise PluginError(f"job name {self.name!r} must be lower-case words joined by '-'", None)
+        if not (isinstance(self.settings, type) and issubclass(self.settings, Settings)):
+            raise PluginError(f"job {self.name!r}: settings must be a Settings subclass", None)
+
+
+@dataclass(frozen=True)
+class ExporterSpec(Descriptor):
+    """Turns a weld path into a robot program or table: ``export(weld_path: dict, settings) -> str``.
+
+    ``suffix`` is the file ending written (``.script``, ``.mod``, ``.csv``).
+    """
+
+    export: Callable[[dict, Any], str] | None = None
+    suffix: str = ".txt"
+    category: ClassVar[str] = "exporter"
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    """A click command added to the ``weldcell`` CLI (``weldcell seam``, ``weldcell calibrate``, ...)."""
+
+    name: str
+    command: Any
+    summary: str = ""
+    category: ClassVar[str] = "command"
+    kind: ClassVar[str] = "command"

@@ -1,0 +1,338 @@
+"""Cell profiles: TOML files that choose a job, its devices and its methods for one physical cell.
+
+Loading a profile (``load_profile``) reads the file and the chain of files it ``extends``,
+substitutes ``${env:NAME}`` secrets, and validates the structure. ``validate_profile`` then checks
+it against the installed plugins: the job and every device and stage plugin exist and are of the
+right kind, their settings validate against the plugins' settings models, optional dependencies
+are installed and calibration files exist. Every problem is reported at once, each with the file,
+the key path and what to change. Nothing opens a device before validation passes.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, ValidationError
+
+from weldcell.sdk.cell import CellSettings
+from weldcell.sdk.errors import ProfileError, WeldcellError
+from weldcell.sdk.settings import Settings
+from weldcell.sdk.units import Angle, Length
+
+SCHEMA = "weldcell/profile@1"
+_ENV = re.compile(r"\$\{env:([A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+class Mount(Settings):
+    """Where a device sits: ``parent`` frame (``world``, ``base`` or ``<role>.flange``) and the offset."""
+
+    parent: str = Field("world", description="parent frame: 'world', or '<device role>.flange'")
+    xyz: tuple[Length, Length, Length] = Field((0.0, 0.0, 0.0), description="offset in the parent [m]")
+    rpy: tuple[Angle, Angle, Angle] = Field((0.0, 0.0, 0.0), description="roll, pitch, yaw [rad]")
+
+
+class DeviceEntry(Settings):
+    """``[devices.<role>]``: the plugin that drives this device, its settings and its mount."""
+
+    plugin: str = Field(description="device plugin name, e.g. 'robot.ur-rtde' or 'camera.sim'")
+    settings: dict[str, Any] = Field(default_factory=dict, description="the plugin's settings")
+    mount: Mount = Field(default_factory=Mount, description="where the device is mounted")
+
+
+class StageEntry(Settings):
+    """``[stages.<role>]``: the method plugin for one step of the job and its settings."""
+
+    plugin: str | None = Field(None, description="stage plugin name; the job's default when omitted")
+    settings: dict[str, Any] = Field(default_factory=dict, description="the plugin's settings")
+
+
+class JobEntry(Settings):
+    """``[job]``: which job this cell runs and its settings."""
+
+    name: str = Field(description="job name, e.g. 'scan-and-plan'")
+    settings: dict[str, Any] = Field(default_factory=dict, description="the job's settings")
+
+
+class WorkpiecePlacement(Settings):
+    """One workpiece of the simulated cell: kind, size parameters and pose in the world frame."""
+
+    kind: str = Field(description="workpiece kind, e.g. 'v-groove-butt' (see docs/simulated-cell.md)")
+    params: dict[str, Any] = Field(default_factory=dict, description="size parameters of the kind")
+    xyz: tuple[Length, Length, Length] = Field((0.5, 0.0, 0.0), description="position in the world [m]")
+    rpy: tuple[Angle, Angle, Angle] = Field((0.0, 0.0, 0.0), description="orientation [rad]")
+
+
+class SimSection(Settings):
+    """``[sim]``: the scene of the simulated cell (ignored by hardware devices)."""
+
+    workpieces: list[WorkpiecePlacement] = Field(default_factory=list, description="parts on the table")
+    table_height: Length = Field(0.0, description="height of the table top in the world [m]")
+    hand_script: str | None = Field(None, description="scripted hand motion for a simulated gesture sensor")
+
+
+class OutputSettings(Settings):
+    """``[output]``: where runs are written and what else to produce."""
+
+    runs_dir: str = Field("runs", description="folder for run folders, relative to the working directory")
+    exporters: list[str] = Field(default_factory=list, description="exporter plugins to run on the result")
+    report: bool = Field(True, description="write report.md and pictures")
+
+
+class Profile(Settings):
+    """A whole cell profile (see docs/profiles.md)."""
+
+    schema_: str = Field(SCHEMA, alias="schema", description="profile schema id")
+    name: str = Field(description="short name of this cell")
+    description: str = Field("", description="what this cell is")
+    extends: str | None = Field(None, description="a base profile this one overrides, relative path")
+    job: JobEntry
+    cell: CellSettings = Field(default_factory=CellSettings)
+    devices: dict[str, DeviceEntry] = Field(default_factory=dict)
+    stages: dict[str, StageEntry] = Field(default_factory=dict)
+    calibration: dict[str, str] = Field(default_factory=dict, description="name -> file, relative to the profile")
+    sim: SimSection = Field(default_factory=SimSection)
+    output: OutputSettings = Field(default_factory=OutputSettings)
+
+    model_config = {"populate_by_name": True}
+
+
+@dataclass
+class LoadedProfile:
+    """A validated profile and where its keys came from."""
+
+    profile: Profile
+    path: Path
+    sources: dict[tuple[str, ...], Path] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+
+    def source_of(self, keypath: tuple[str, ...]) -> Path:
+        """The file that set ``keypath`` (the nearest set parent key, else the profile itself)."""
+        for n in range(len(keypath), 0, -1):
+            if keypath[:n] in self.sources:
+                return self.sources[keypath[:n]]
+        return self.path
+
+    def resolve(self, relative: str) -> Path:
+        """A path written in the profile, relative to the file that wrote it."""
+        return (self.path.parent / relative).resolve()
+
+
+def _merge(base: dict, over: dict, src: Path, sources: dict, prefix: tuple[str, ...] = ()) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        key = (*prefix, k)
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v, src, sources, key)
+        else:
+            out[k] = v
+            _mark(v, src, sources, key)
+    return out
+
+
+def _mark(v: Any, src: Path, sources: dict, key: tuple[str, ...]) -> None:
+    sources[key] = src
+    if isinstance(v, dict):
+        for k2, v2 in v.items():
+            _mark(v2, src, sources, (*key, k2))
+
+
+def _read_toml(path: Path) -> dict:
+    if not path.is_file():
+        raise ProfileError(f"profile not found: {path}", "check the path (profiles live in profiles/)")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ProfileError(f"{path}: not valid TOML: {e}", "fix the TOML syntax at that line") from None
+
+
+def _load_chain(path: Path, sources: dict, files: list[Path], seen: tuple[Path, ...] = ()) -> dict:
+    path = path.resolve()
+    if path in seen:
+        chain = " -> ".join(str(p) for p in (*seen, path))
+        raise ProfileError(f"profiles extend each other in a cycle: {chain}", "remove one 'extends'")
+    data = _read_toml(path)
+    files.append(path)
+    merged: dict = {}
+    if "extends" in data:
+        base_path = (path.parent / str(data["extends"])).resolve()
+        if not base_path.is_file():
+            raise ProfileError(
+                f"{path}: extends: base profile not found: {base_path}",
+                "fix the 'extends' path (it is relative to this file)",
+            )
+        merged = _load_chain(base_path, sources, files, (*seen, path))
+    data_wo = {k: v for k, v in data.items() if k != "extends"}
+    merged = _merge(merged, data_wo, path, sources)
+    if "extends" in data:
+        merged["extends"] = data["extends"]
+        sources[("extends",)] = path
+    return merged
+
+
+def _substitute_env(value: Any, keypath: tuple[str, ...], problems: list[tuple[tuple[str, ...], str]]) -> Any:
+    if isinstance(value, dict):
+        return {k: _substitute_env(v, (*keypath, k), problems) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_substitute_env(v, (*keypath, str(i)), problems) for i, v in enumerate(value)]
+    if isinstance(value, str):
+
+        def repl(m: re.Match) -> str:
+            name = m.group(1)
+            if name not in os.environ:
+                problems.append((keypath, f"environment variable {name} is not set; export {name}=... first"))
+                return ""
+            return os.environ[name]
+
+        return _ENV.sub(repl, value)
+    return value
+
+
+def _fmt(loc: tuple) -> str:
+    return ".".join(str(p) for p in loc) or "(top level)"
+
+
+def pydantic_problems(err: ValidationError, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], str]]:
+    """Turn pydantic errors into (key path, 'what is wrong; what to do') pairs."""
+    out = []
+    for e in err.errors():
+        loc = tuple(str(p) for p in e["loc"] if not str(p).startswith("function-after"))
+        loc = tuple(p for p in loc if p not in ("tagged-union", "constrained-float"))
+        key = (*prefix, *loc)
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key; remove it or check its spelling"
+        elif e["type"] == "missing":
+            msg = "required key is missing; add it"
+        else:
+            msg = e["msg"].removeprefix("Value error, ")
+            if "input" in e and not isinstance(e["input"], dict | list):
+                msg += f" (got {e['input']!r})"
+        out.append((key, msg))
+    return out
+
+
+def load_profile(path: str | Path) -> LoadedProfile:
+    """Read and structurally validate a profile (with its ``extends`` chain and env secrets).
+
+    Raises :class:`ProfileError` listing every problem with file and key path.
+    """
+    path = Path(path)
+    sources: dict[tuple[str, ...], Path] = {}
+    files: list[Path] = []
+    raw = _load_chain(path, sources, files)
+    env_problems: list[tuple[tuple[str, ...], str]] = []
+    raw = _substitute_env(raw, (), env_problems)
+    loaded = LoadedProfile(profile=None, path=path.resolve(), sources=sources, files=files)  # type: ignore[arg-type]
+    problems = list(env_problems)
+    try:
+        loaded.profile = Profile.model_validate(raw)
+    except ValidationError as e:
+        problems += pydantic_problems(e)
+    if problems:
+        raise _profile_error(loaded, problems)
+    if loaded.profile.schema_ != SCHEMA:
+        raise _profile_error(loaded, [(("schema",), f"unsupported schema {loaded.profile.schema_!r}; use {SCHEMA!r}")])
+    return loaded
+
+
+def _profile_error(loaded: LoadedProfile, problems: list[tuple[tuple[str, ...], str]]) -> ProfileError:
+    lines = [f"{loaded.source_of(k)}: {_fmt(k)}: {msg}" for k, msg in problems]
+    return ProfileError(
+        f"profile {loaded.path} is invalid ({len(lines)} problem{'s' if len(lines) != 1 else ''})",
+        "fix the keys listed; `weldcell profiles validate FILE` checks again",
+        problems=lines,
+    )
+
+
+def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict[str, Any]:
+    """Check a loaded profile against the installed plugins.
+
+    Returns the validated settings objects: ``{"job": JobSettings, "devices": {role: (spec, settings)},
+    "stages": {role: (spec, settings)}, "exporters": [spec]}``. Raises :class:`ProfileError` with
+    every problem found. ``extra_checks(loaded)`` adds plugins' own checks
+    (:meth:`weldcell.sdk.plugins.PluginManager.check_profile`).
+    """
+    p = loaded.profile
+    problems: list[tuple[tuple[str, ...], str]] = []
+    resolved: dict[str, Any] = {"devices": {}, "stages": {}, "exporters": []}
+
+    def settings_for(spec, values: dict, key: tuple[str, ...]):
+        try:
+            return spec.settings.model_validate(values)
+        except ValidationError as e:
+            problems.extend(pydantic_problems(e, key))
+            return None
+
+    try:
+        job = registry.get("job", p.job.name)
+    except WeldcellError as e:
+        problems.append((("job", "name"), f"{e.message}; {e.fix}" if e.fix else e.message))
+        raise _profile_error(loaded, problems) from None
+    resolved["job_spec"] = job
+    resolved["job"] = settings_for(job, p.job.settings, ("job", "settings"))
+
+    roles = {r.role: r for r in job.devices}
+    for role, entry in p.devices.items():
+        key = ("devices", role)
+        if role not in roles:
+            problems.append((key, f"job '{job.name}' uses no device '{role}'; its devices are: "
+                                  f"{', '.join(roles) or '(none)'}"))
+            continue
+        try:
+            spec = registry.get("device", entry.plugin, kind=roles[role].kind)
+            spec.check_available()
+        except WeldcellError as e:
+            problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
+            continue
+        settings = settings_for(spec, entry.settings, (*key, "settings"))
+        if entry.mount.parent not in ("world", "base") and not entry.mount.parent.endswith(".flange"):
+            problems.append(((*key, "mount", "parent"), f"unknown frame '{entry.mount.parent}'; use 'world' "
+                                                        "or '<device role>.flange'"))
+        elif entry.mount.parent.endswith(".flange") and entry.mount.parent[: -len(".flange")] not in p.devices:
+            problems.append(((*key, "mount", "parent"), f"'{entry.mount.parent}' names no device of this profile"))
+        resolved["devices"][role] = (spec, settings)
+    for role, r in roles.items():
+        if role not in p.devices and not r.optional:
+            problems.append((("devices", role), f"job '{job.name}' needs a {r.kind} as device '{role}' "
+                                                f"({r.summary}); add [devices.{role}] with a plugin"))
+
+    stage_roles = {r.role: r for r in job.stages}
+    for role in p.stages:
+        if role not in stage_roles:
+            problems.append((("stages", role), f"job '{job.name}' has no stage '{role}'; its stages are: "
+                                               f"{', '.join(stage_roles) or '(none)'}"))
+    for role, r in stage_roles.items():
+        entry = p.stages.get(role)
+        name = (entry.plugin if entry and entry.plugin else None) or r.default
+        key = ("stages", role)
+        try:
+            spec = registry.get("stage", name, kind=r.kind)
+            spec.check_available()
+        except WeldcellError as e:
+            problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
+            continue
+        resolved["stages"][role] = (spec, settings_for(spec, entry.settings if entry else {}, (*key, "settings")))
+
+    for i, name in enumerate(p.output.exporters):
+        try:
+            spec = registry.get("exporter", name)
+            spec.check_available()
+            resolved["exporters"].append(spec)
+        except WeldcellError as e:
+            problems.append((("output", "exporters", str(i)), f"{e.message}; {e.fix}" if e.fix else e.message))
+
+    for name, rel in p.calibration.items():
+        f = (loaded.source_of(("calibration", name)).parent / rel).resolve()
+        if not f.is_file():
+            problems.append((("calibration", name), f"file not found: {f}; run `weldcell calibrate` or fix the path"))
+
+    if extra_checks is not None:
+        problems.extend(extra_checks(loaded))
+
+    if problems:
+        raise _profile_error(loaded, problems)
+    return resolved
