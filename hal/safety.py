@@ -65,9 +65,12 @@ class SafetyGate:
                 "cell really allows it",
             )
         reach = self.reach
-        if reach is not None and np.linalg.norm(p) > reach:
+        dist_fn = getattr(self.model, "distance_from_shoulder", None) if self.limits.max_reach is None else None
+        dist = float(dist_fn(p)) if dist_fn is not None else float(np.linalg.norm(p))
+        if reach is not None and dist > reach:
+            origin = "shoulder" if dist_fn is not None else "base"
             raise SafetyError(
-                f"{what} {_fmt(p)} is {np.linalg.norm(p):.3f} m from the robot base, beyond its reach of "
+                f"{what} {_fmt(p)} is {dist:.3f} m from the robot's {origin}, beyond its reach of "
                 f"{reach:.3f} m",
                 "bring the part closer to the robot or choose a robot with more reach",
             )
@@ -149,6 +152,8 @@ class SafetyGate:
         for i, T in enumerate(interpolate_poses(T0, T1, np.linspace(0.0, 1.0, n))):
             where = f"{what} at {100.0 * i / (n - 1):.0f}% of the path"
             self.check_point(T[:3, 3], where)
+            if i == 0 and q_seed is not None:
+                continue  # the start is the robot's current pose, whose joints are q_seed
             q_new = self.solve(T @ inv_tcp, q, where)
             if q is not None and q_new is not None and np.max(np.abs(q_new - q)) > 0.35:
                 raise SafetyError(

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-
 from weldcell.sdk.errors import DataError, SafetyError, UsageError
 from weldcell.sdk.geometry import interpolate_poses, pose_error, rotation_angle
 
@@ -113,6 +113,11 @@ def _rot_z_batch(theta: np.ndarray) -> np.ndarray:
     return out
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross is slow for single vectors)."""
+    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+
+
 def _rot(k: np.ndarray, t: float) -> np.ndarray:
     """Rodrigues rotation about unit axis ``k`` by ``t``."""
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
@@ -120,26 +125,26 @@ def _rot(k: np.ndarray, t: float) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ Paden-Kahan subproblems
-def _sp1(k: np.ndarray, p: np.ndarray, q: np.ndarray) -> float | None:
-    """Subproblem 1: angle ``t`` with ``rot(k, t) p = q`` (least squares); None when ``p`` or ``q`` lies on ``k``."""
+def _sp1(k: np.ndarray, p: np.ndarray, q: np.ndarray, eps: float = 1e-9) -> float | None:
+    """Subproblem 1: angle ``t`` with ``rot(k, t) p = q``; None if ``p`` or ``q`` is on ``k``."""
     pp = p - k * (k @ p)
     qq = q - k * (k @ q)
-    if np.linalg.norm(pp) < 1e-9 or np.linalg.norm(qq) < 1e-9:
+    if np.linalg.norm(pp) < eps or np.linalg.norm(qq) < eps:
         return None
-    return math.atan2(float(k @ np.cross(pp, qq)), float(pp @ qq))
+    return math.atan2(float(k @ _cross(pp, qq)), float(pp @ qq))
 
 
-def _sp4(h: np.ndarray, k: np.ndarray, p: np.ndarray, d: float) -> list[float] | None:
+def _sp4(h: np.ndarray, k: np.ndarray, p: np.ndarray, d: float, tol: float = 1e-9) -> list[float] | None:
     """Subproblem 4: angles ``t`` with ``h^T rot(k, t) p = d``: [] if none, None if every ``t`` solves it."""
     kp = k @ p
     A = float(h @ p - (h @ k) * kp)
-    B = float(h @ np.cross(k, p))
+    B = float(h @ _cross(k, p))
     C = float((h @ k) * kp)
     r = math.hypot(A, B)
     if r < 1e-10:
         return None if abs(d - C) < 1e-9 else []
     x = (d - C) / r
-    if abs(x) > 1.0 + 1e-9:
+    if abs(x) > 1.0 + tol:
         return []
     phi = math.atan2(B, A)
     dt = math.acos(max(-1.0, min(1.0, x)))
@@ -157,14 +162,16 @@ def _wrap(a: np.ndarray | float) -> Any:
 
 @dataclass(frozen=True, eq=False)
 class _Screws:
-    """Product-of-exponentials description at ``q = 0``: unit axes ``h`` through points ``p``, flange ``M``."""
+    """Product of exponentials at ``q = 0``: unit axes ``h`` through points ``p``, flange pose ``M``."""
 
     h: np.ndarray
     p: np.ndarray
     M: np.ndarray
 
 
-def _closest_points(p1: np.ndarray, h1: np.ndarray, p2: np.ndarray, h2: np.ndarray) -> tuple[np.ndarray, float]:
+def _closest_points(
+    p1: np.ndarray, h1: np.ndarray, p2: np.ndarray, h2: np.ndarray
+) -> tuple[np.ndarray, float]:
     """Midpoint of the closest points of two lines and their distance (parallel lines: point on line 1)."""
     w = p1 - p2
     b = float(h1 @ h2)
@@ -216,8 +223,11 @@ def _ik_three_parallel(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndarr
     q6 (SP1), q2 + q3 + q4 (SP1), q3 (law of cosines, SP4), q2 (SP1), q4 by difference.
     """
     h, P, M = s.h, s.p, s.M
+    s3, s4 = float(np.sign(h[2] @ h[1])), float(np.sign(h[3] @ h[1]))  # parallel or antiparallel axes
     R06 = T[:3, :3] @ M[:3, :3].T
     O5 = T[:3, 3] - R06 @ (M[:3, 3] - W0)
+    a = _perp(P[2] - P[1], h[1])
+    b = _perp(P[3] - P[2], h[1])
     sols: list[np.ndarray] = []
     r1 = _sp4(O5 - P[0], h[0], h[1], float(h[1] @ (W0 - P[0])))
     q1s = [seed[0]] if r1 is None else r1
@@ -227,29 +237,77 @@ def _ik_three_parallel(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndarr
         q5s = [seed[4]] if r5 is None else r5
         for q5 in q5s:
             R5 = _rot(h[4], q5)
-            q6 = _sp1(h[5], R06.T @ R1 @ h[1], R5.T @ h[1])
-            if q6 is None:
-                q6 = float(seed[5])
-            R6 = _rot(h[5], q6)
-            R234 = R1.T @ R06 @ R6.T @ R5.T
             u = _unit_perp(h[1])
-            q234 = _sp1(h[1], u, R234 @ u)
-            if q234 is None:
-                continue
             X = R1.T @ (O5 - P[0]) + P[0]
+            q6 = _sp1(h[5], R06.T @ R1 @ h[1], R5.T @ h[1], eps=1e-7)
+            if q6 is None:  # wrist singularity: axis 6 || axis 4, only q234 +- q6 is fixed
+                q234 = _singular_q234(
+                    h[1],
+                    R1.T @ R06 @ R5.T,
+                    float(np.sign(h[1] @ R5 @ h[5])),
+                    seed[5],
+                    X - P[1],
+                    W0 - P[3],
+                    a,
+                    b,
+                    u,
+                )
+                if q234 is None:
+                    continue
+                q6 = _sp1(h[5], u6 := _unit_perp(h[5]), R5.T @ _rot(h[1], q234).T @ R1.T @ R06 @ u6)
+                if q6 is None:
+                    continue
+            else:
+                R234 = R1.T @ R06 @ _rot(h[5], q6).T @ R5.T
+                q234 = _sp1(h[1], u, R234 @ u)  # = q2 + s3 q3 + s4 q4
+                if q234 is None:
+                    continue
             Y = X - P[1] - _rot(h[1], q234) @ (W0 - P[3])
-            a = _perp(P[2] - P[1], h[1])
-            b = _perp(P[3] - P[2], h[1])
             y = _perp(Y, h[1])
-            r3 = _sp4(a, h[1], b, 0.5 * float(y @ y - a @ a - b @ b))
-            q3s = [seed[2]] if r3 is None else r3
+            r3 = _sp4(a, h[1], b, 0.5 * float(y @ y - a @ a - b @ b), tol=1e-7)
+            q3s = [s3 * seed[2]] if r3 is None else r3  # angles about h2
             for q3 in q3s:
                 v = a + _rot(h[1], q3) @ b
                 q2 = _sp1(h[1], v, y)
                 if q2 is None:
                     q2 = float(seed[1])
-                sols.append(np.array([q1, q2, q3, q234 - q2 - q3, q5, q6]))
+                sols.append(np.array([q1, q2, s3 * q3, s4 * (q234 - q2 - q3), q5, q6]))
     return sols
+
+
+def _singular_q234(
+    h2: np.ndarray,
+    R: np.ndarray,
+    sigma: float,
+    q6_seed: float,
+    x: np.ndarray,
+    w: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    u: np.ndarray,
+) -> float | None:
+    """q2 + q3 + q4 at a UR-type wrist singularity (axis 6 parallel to axes 2-4).
+
+    There ``rot(h2, q234 + sigma q6) = R`` fixes only ``psi = q234 + sigma q6``, but q234 also places
+    axis 4 on a circle about the wrist point, which the 2-link arm (a, b) must reach:
+    ``|perp(x - rot(h2, q234) w)|`` in ``[| |a|-|b| |, |a|+|b|]``. Take the q234 implied by the seed's q6
+    when feasible, else the nearest feasible one (SP4 on the interval ends).
+    """
+    psi = _sp1(h2, u, R @ u)
+    if psi is None:
+        return None
+    t_seed = psi - sigma * q6_seed
+    x0, v = _perp(x, h2), _perp(w, h2)
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    base = float(x0 @ x0 + v @ v)
+    lo, hi = 0.5 * (base - (na + nb) ** 2), 0.5 * (base - (na - nb) ** 2)
+    g = float(x0 @ _rot(h2, t_seed) @ v)
+    if lo - 1e-12 <= g <= hi + 1e-12:
+        return t_seed
+    cands = [t for bound in (lo, hi) for t in (_sp4(x0, h2, v, bound) or [])]
+    if not cands:
+        return None
+    return min(cands, key=lambda t: abs(float(_wrap(t - t_seed))))
 
 
 def _ik_spherical_wrist(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndarray) -> list[np.ndarray]:
@@ -258,6 +316,7 @@ def _ik_spherical_wrist(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndar
     Position: q1 (SP4), q3 (law of cosines, SP4), q2 (SP1). Orientation: q5 (SP4), q4 (SP1), q6 (SP1).
     """
     h, P, M = s.h, s.p, s.M
+    s3 = float(np.sign(h[2] @ h[1]))
     R06 = T[:3, :3] @ M[:3, :3].T
     W = T[:3, 3] - R06 @ (M[:3, 3] - W0)
     sols: list[np.ndarray] = []
@@ -269,11 +328,12 @@ def _ik_spherical_wrist(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndar
         R1 = _rot(h[0], q1)
         y = _perp(R1.T @ (W - P[0]) + P[0] - P[1], h[1])
         r3 = _sp4(a, h[1], b, 0.5 * float(y @ y - a @ a - b @ b))
-        q3s = [seed[2]] if r3 is None else r3
-        for q3 in q3s:
-            q2 = _sp1(h[1], a + _rot(h[1], q3) @ b, y)
+        q3s = [s3 * seed[2]] if r3 is None else r3  # angles about h2
+        for q3h in q3s:
+            q2 = _sp1(h[1], a + _rot(h[1], q3h) @ b, y)
             if q2 is None:
                 q2 = float(seed[1])
+            q3 = s3 * q3h
             Rw = (R1 @ _rot(h[1], q2) @ _rot(h[2], q3)).T @ R06
             z = Rw @ h[5]
             r5 = _sp4(h[3], h[4], h[5], float(h[3] @ z))
@@ -295,7 +355,7 @@ def _ik_spherical_wrist(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndar
 def _unit_perp(k: np.ndarray) -> np.ndarray:
     """A unit vector perpendicular to ``k``."""
     e = np.eye(3)[int(np.argmin(np.abs(k)))]
-    u = np.cross(k, e)
+    u = _cross(k, e)
     return u / np.linalg.norm(u)
 
 
@@ -358,6 +418,7 @@ class RobotModel:
     ik_method: str = field(init=False)
     _ik_point: np.ndarray | None = field(init=False, repr=False)
     shoulder: np.ndarray = field(init=False, repr=False)
+    max_reach_bound: float = field(init=False)
 
     def __post_init__(self) -> None:
         for key in ("joint_limits", "joint_speed_limits", "joint_accel_limits", "home"):
@@ -370,13 +431,20 @@ class RobotModel:
         object.__setattr__(self, "_pre", pre)
         object.__setattr__(self, "_post", post)
         frames, axes_frames = self._chain(np.zeros((1, self.dof)))
-        screws = _Screws(axes_frames[0, :, :3, 2].copy(), axes_frames[0, :, :3, 3].copy(), frames[0, -1].copy())
+        screws = _Screws(
+            axes_frames[0, :, :3, 2].copy(), axes_frames[0, :, :3, 3].copy(), frames[0, -1].copy()
+        )
         object.__setattr__(self, "_screws", screws)
         method, extra = _classify(screws)
         object.__setattr__(self, "ik_method", method)
         object.__setattr__(self, "_ik_point", extra.get("O5", extra.get("W")))
         shoulder = _closest_on_first(screws.p[0], screws.h[0], screws.p[1], screws.h[1])
         object.__setattr__(self, "shoulder", shoulder)
+        # Triangle inequality along the chain of frame origins (each consecutive pair is rigidly linked):
+        # no flange position can be farther from the shoulder than this.
+        o = frames[0, 1:, :3, 3]
+        bound = float(np.linalg.norm(o[0] - shoulder) + np.sum(np.linalg.norm(np.diff(o, axis=0), axis=1)))
+        object.__setattr__(self, "max_reach_bound", bound)
         if not self.within_limits(self.home):
             raise DataError(f"robot model {self.name!r}: home configuration is outside the joint limits")
 
@@ -393,7 +461,7 @@ class RobotModel:
         return Q
 
     def _chain(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Frames (N, dof+2, 4, 4) [base, link 1..n, flange] and joint-axis frames (N, dof, 4, 4) for (N, dof)."""
+        """Frames (N, dof+2, 4, 4) [base, links, flange] and joint-axis frames (N, dof, 4, 4) of (N, dof)."""
         N = Q.shape[0]
         T = np.tile(np.eye(4), (N, 1, 1))
         frames = np.empty((N, self.dof + 2, 4, 4))
@@ -421,7 +489,7 @@ class RobotModel:
         return frames[0] if Q.ndim == 1 else frames
 
     def jacobian(self, q: Any) -> np.ndarray:
-        """Geometric Jacobian (6, dof) in the base frame: rows 0-2 flange-origin velocity, rows 3-5 angular velocity."""
+        """Geometric Jacobian (6, dof), base frame: rows 0-2 flange-origin velocity, 3-5 angular velocity."""
         Q = self._as_q(q)
         frames, axes = self._chain(np.atleast_2d(Q))
         z = axes[:, :, :3, 2]
@@ -470,10 +538,6 @@ class RobotModel:
         return self.distance_from_shoulder(p) <= self.reach
 
     # ------------------------------------------------------------------ inverse kinematics
-    def _pose_ok(self, q: np.ndarray, T: np.ndarray, tol_pos: float, tol_rot: float) -> bool:
-        dp, dr = pose_error(self.fk(q), T)
-        return dp <= tol_pos and dr <= tol_rot
-
     def _polish(self, q: np.ndarray, T: np.ndarray, iters: int = 3) -> np.ndarray:
         """A few Gauss-Newton steps (removes round-off near singular closed-form branches)."""
         for _ in range(iters):
@@ -499,13 +563,32 @@ class RobotModel:
             return None
         return np.clip(best, lo, hi)
 
-    def _analytic_raw(self, T: np.ndarray, seed: np.ndarray) -> list[np.ndarray]:
+    def _pose_errors(self, Q: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position (m) and rotation (rad, ``|R - R_T|_F / sqrt 2``, first-order exact) errors of (N, dof)."""
+        F = self._chain(Q)[0][:, -1]
+        ep = np.linalg.norm(F[:, :3, 3] - T[:3, 3], axis=1)
+        er = np.linalg.norm(F[:, :3, :3] - T[:3, :3], axis=(1, 2)) / math.sqrt(2.0)
+        return ep, er
+
+    def _analytic_raw(
+        self, T: np.ndarray, seed: np.ndarray, tol_pos: float, tol_rot: float
+    ) -> list[np.ndarray]:
+        """Distinct closed-form solutions that reproduce ``T`` within the tolerances (polished if needed)."""
         W0 = self._ik_point
         assert W0 is not None
         solver = _ik_three_parallel if self.ik_method == "three-parallel" else _ik_spherical_wrist
-        raw = [self._polish(q, T) for q in solver(self._screws, W0, T, seed)]
+        raw = solver(self._screws, W0, T, seed)
+        if not raw:
+            return []
+        Q = np.array(raw)
+        ep, er = self._pose_errors(Q, T)
+        rough = (ep > 1e-12) | (er > 1e-12)
+        for i in np.flatnonzero(rough):  # near-singular branches: a few Gauss-Newton steps
+            Q[i] = self._polish(Q[i], T)
+        if np.any(rough):
+            ep, er = self._pose_errors(Q, T)
         uniq: list[np.ndarray] = []
-        for q in raw:
+        for q in Q[(ep <= tol_pos) & (er <= tol_rot)]:
             if not any(np.all(np.abs(_wrap(q - u)) < 1e-6) for u in uniq):
                 uniq.append(q)
         return uniq
@@ -513,12 +596,16 @@ class RobotModel:
     def _check_target(self, T: Any) -> np.ndarray:
         T = np.asarray(T, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise UsageError(f"{self.name}: IK target must be a finite 4x4 transform, got shape {T.shape}",
-                             "pass T_base_flange as a 4x4 numpy array in metres")
+            raise UsageError(
+                f"{self.name}: IK target must be a finite 4x4 transform, got shape {T.shape}",
+                "pass T_base_flange as a 4x4 numpy array in metres",
+            )
         R = T[:3, :3]
         if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-            raise UsageError(f"{self.name}: IK target rotation is not orthonormal",
-                             "orthonormalize the target (weldcell.sdk.geometry.orthonormalize)")
+            raise UsageError(
+                f"{self.name}: IK target rotation is not orthonormal",
+                "orthonormalize the target (weldcell.sdk.geometry.orthonormalize)",
+            )
         return T
 
     def _unreachable(self, T: np.ndarray, why: str) -> SafetyError:
@@ -533,11 +620,20 @@ class RobotModel:
             fix = "move the target closer to the robot or move the workpiece/robot base"
         else:
             msg = f"{self.name}: no IK solution within joint limits: {where}{why}"
-            fix = "change the target orientation or the workpiece placement so the arm stays inside its limits"
+            fix = (
+                "change the target orientation or the workpiece placement so the arm stays inside its limits"
+            )
         return SafetyError(msg, fix)
 
-    def ik_all(self, T_base_flange: Any, *, within_limits_only: bool = True, q_ref: Any = None,
-               tol_pos: float = 1e-5, tol_rot: float = 1e-4) -> np.ndarray:
+    def ik_all(
+        self,
+        T_base_flange: Any,
+        *,
+        within_limits_only: bool = True,
+        q_ref: Any = None,
+        tol_pos: float = 1e-5,
+        tol_rot: float = 1e-4,
+    ) -> np.ndarray:
         """All distinct IK solutions (k, dof) for the flange pose (k = 0 when none).
 
         Closed form (up to 8) for the 6-DOF arms; for the redundant Panda, the distinct solutions reached
@@ -551,14 +647,12 @@ class RobotModel:
             seeds = [ref, self.home, *self._numeric_seeds(16)]
             sols = []
             for s in seeds:
-                q = self._dls(T, s, tol_pos, tol_rot)
+                q = self._bounded_lsq(T, s, tol_pos, tol_rot)
                 if q is not None and not any(np.linalg.norm(q - u) < 1e-3 for u in sols):
                     sols.append(q)
             return np.array(sols).reshape(-1, self.dof)
         out = []
-        for q in self._analytic_raw(T, ref):
-            if not self._pose_ok(q, T, tol_pos, tol_rot):
-                continue
+        for q in self._analytic_raw(T, ref, tol_pos, tol_rot):
             qs = self._shift_into_limits(q, ref)
             if qs is not None:
                 out.append(qs)
@@ -566,8 +660,9 @@ class RobotModel:
                 out.append(_wrap(q))
         return np.array(out).reshape(-1, self.dof)
 
-    def ik(self, T_base_flange: Any, q_seed: Any = None, *, tol_pos: float = 1e-5,
-           tol_rot: float = 1e-4) -> np.ndarray:
+    def ik(
+        self, T_base_flange: Any, q_seed: Any = None, *, tol_pos: float = 1e-5, tol_rot: float = 1e-4
+    ) -> np.ndarray:
         """Joint solution within limits nearest ``q_seed`` (default ``home``) for the flange pose.
 
         Raises :class:`SafetyError` ("out of reach" or "no IK solution within joint limits", with the
@@ -575,9 +670,11 @@ class RobotModel:
         """
         T = self._check_target(T_base_flange)
         seed = self.home if q_seed is None else self._as_q(q_seed)
+        if self.distance_from_shoulder(T[:3, 3]) > self.max_reach_bound + 1e-9:
+            raise self._unreachable(T, "reach")
         if self.ik_method == "numeric":
             return self._ik_numeric(T, seed, tol_pos, tol_rot)
-        raw = [q for q in self._analytic_raw(T, seed) if self._pose_ok(q, T, tol_pos, tol_rot)]
+        raw = self._analytic_raw(T, seed, tol_pos, tol_rot)
         if not raw:
             raise self._unreachable(T, "reach")
         cands = [c for c in (self._shift_into_limits(q, seed) for q in raw) if c is not None]
@@ -592,11 +689,20 @@ class RobotModel:
         lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
         return lo + (hi - lo) * (0.1 + 0.8 * rng.random((n, self.dof)))
 
-    def _dls(self, T: np.ndarray, q0: np.ndarray, tol_pos: float, tol_rot: float, *, clamp: bool = True,
-             max_iter: int = 150) -> np.ndarray | None:
+    def _dls(
+        self,
+        T: np.ndarray,
+        q0: np.ndarray,
+        tol_pos: float,
+        tol_rot: float,
+        *,
+        clamp: bool = True,
+        max_iter: int = 150,
+    ) -> np.ndarray | None:
         """Damped least squares with LM damping ``lambda^2 = E + 1e-9`` and a null-space pull toward home.
 
         ``dq = J^T (J J^T + lambda^2 I)^-1 e + (I - J^+ J) k (q_home - q)``; joints clamped to the limits.
+        The pull stops once the pose error is below 1e-4 so the final steps converge quadratically.
         """
         lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
         q = np.clip(q0, lo, hi) if clamp else np.array(q0, dtype=float)
@@ -612,9 +718,8 @@ class RobotModel:
             lam2 = 0.5 * float(e @ e) + 1e-9
             JJt = J @ J.T
             dq = J.T @ np.linalg.solve(JJt + lam2 * eye6, e)
-            if self.dof > 6:
-                Jpinv = J.T @ np.linalg.solve(JJt + 1e-6 * eye6, eye6)
-                dq = dq + (np.eye(self.dof) - Jpinv @ J) @ (0.2 * (self.home - q))
+            if self.dof > 6 and ep + er > 1e-4:  # pull off at the end so the last steps converge exactly
+                dq = dq + (np.eye(self.dof) - np.linalg.pinv(J, rcond=1e-6) @ J) @ (0.2 * (self.home - q))
             step = float(np.max(np.abs(dq)))
             if step > 0.5:
                 dq *= 0.5 / step
@@ -622,23 +727,47 @@ class RobotModel:
             if clamp:
                 q = np.clip(q, lo, hi)
         dp, dr = pose_error(self.fk(q), T)
+        return q if (dp <= 1e-2 * tol_pos and dr <= 1e-2 * tol_rot) else None
+
+    def _bounded_lsq(
+        self, T: np.ndarray, q0: np.ndarray, tol_pos: float, tol_rot: float, *, bounded: bool = True
+    ) -> np.ndarray | None:
+        """Trust-region reflective least squares on the pose residual with the joint limits as bounds."""
+        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
+        x0 = np.clip(q0, lo + 1e-9, hi - 1e-9) if bounded else np.asarray(q0, dtype=float)
+        res = least_squares(
+            lambda q: -_pose_residual(self.fk(q), T),
+            x0,
+            jac=self.jacobian,
+            bounds=(lo, hi) if bounded else (-np.inf, np.inf),
+            method="trf",
+            xtol=1e-10,
+            ftol=1e-12,
+            gtol=1e-12,
+            max_nfev=100,
+        )
+        q = res.x
+        if bounded:
+            polished = self._polish(q, T, iters=4)
+            if self.within_limits(polished):
+                q = polished
+        dp, dr = pose_error(self.fk(q), T)
         return q if (dp <= tol_pos and dr <= tol_rot) else None
 
     def _ik_numeric(self, T: np.ndarray, seed: np.ndarray, tol_pos: float, tol_rot: float) -> np.ndarray:
-        found: list[np.ndarray] = []
+        """DLS from the seed (fast, continuous along paths); else bounded least squares from more seeds."""
+        q = self._dls(T, seed, tol_pos, tol_rot, max_iter=60)
+        if q is not None:
+            return q
         for s in [seed, self.home, *self._numeric_seeds(24)]:
-            q = self._dls(T, s, tol_pos, tol_rot)
+            q = self._bounded_lsq(T, s, tol_pos, tol_rot)
             if q is not None:
-                found.append(q)
-                if len(found) >= 1 and np.linalg.norm(q - seed) < 0.5 or len(found) >= 3:
-                    break
-        if found:
-            return min(found, key=lambda c: float(np.sum((c - seed) ** 2)))
+                return q
         # distinguish "outside the joint limits" from "outside the workspace"
-        for s in [seed, self.home, *self._numeric_seeds(8)]:
-            q = self._dls(T, s, tol_pos, tol_rot, clamp=False)
+        for s in [seed, self.home, *self._numeric_seeds(6)]:
+            q = self._bounded_lsq(T, s, tol_pos, tol_rot, bounded=False)
             if q is not None:
-                detail = self.limit_violations(_wrap(q)) or ["(wrapped solution at a limit)"]
+                detail = self.limit_violations(_wrap(q)) or ["(a solution lies on a limit)"]
                 raise self._unreachable(T, f"; e.g. {detail[0]}")
         raise self._unreachable(T, "reach")
 
@@ -658,7 +787,9 @@ class RobotModel:
 
     def _sync_limits(self, dq: np.ndarray, speed_scale: float) -> tuple[float | None, float]:
         if not (0.0 < speed_scale <= 1.0):
-            raise UsageError(f"speed_scale must be in (0, 1], got {speed_scale}", "use a fraction of full speed")
+            raise UsageError(
+                f"speed_scale must be in (0, 1], got {speed_scale}", "use a fraction of full speed"
+            )
         moving = dq > 1e-12
         if not np.any(moving):
             return None, 0.0
@@ -666,8 +797,9 @@ class RobotModel:
         as_ = float(np.min(speed_scale**2 * self.joint_accel_limits[moving] / dq[moving]))
         return vs, as_
 
-    def sample_joint_move(self, q0: Any, q1: Any, dt: float = 0.008,
-                          speed_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    def sample_joint_move(
+        self, q0: Any, q1: Any, dt: float = 0.008, speed_scale: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Times (K,) and joint positions (K, dof) of :meth:`joint_move_time`'s profile every ``dt`` s."""
         q0a, q1a = self._as_q(q0), self._as_q(q1)
         vs, as_ = self._sync_limits(np.abs(q1a - q0a), speed_scale)
@@ -678,8 +810,16 @@ class RobotModel:
         s = trapezoid_position(t, 1.0, vs, as_)
         return t, q0a + s[:, None] * (q1a - q0a)
 
-    def linear_move_time(self, T0: Any, T1: Any, speed: float, accel: float, *,
-                         rot_speed: float | None = None, rot_accel: float | None = None) -> float:
+    def linear_move_time(
+        self,
+        T0: Any,
+        T1: Any,
+        speed: float,
+        accel: float,
+        *,
+        rot_speed: float | None = None,
+        rot_accel: float | None = None,
+    ) -> float:
         """Duration (s) of a straight-line TCP move: trapezoids along the path length (``speed`` m/s,
         ``accel`` m/s^2) and the rotation angle (``rot_speed`` rad/s, default ``max_tcp_rot_speed``;
         ``rot_accel`` default with the same ramp time as the translation); the slower one decides.
@@ -687,23 +827,37 @@ class RobotModel:
         Raises :class:`SafetyError` when ``speed`` exceeds ``max_tcp_speed``.
         """
         if speed <= 0 or accel <= 0:
-            raise UsageError(f"linear move needs speed > 0 and accel > 0, got {speed}, {accel}",
-                             "give the TCP speed in m/s and acceleration in m/s^2")
+            raise UsageError(
+                f"linear move needs speed > 0 and accel > 0, got {speed}, {accel}",
+                "give the TCP speed in m/s and acceleration in m/s^2",
+            )
         if speed > self.max_tcp_speed + 1e-12:
-            raise SafetyError(f"{self.name}: TCP speed {speed:.3f} m/s exceeds the limit {self.max_tcp_speed} m/s",
-                              f"use a speed <= {self.max_tcp_speed} m/s")
+            raise SafetyError(
+                f"{self.name}: TCP speed {speed:.3f} m/s exceeds the limit {self.max_tcp_speed} m/s",
+                f"use a speed <= {self.max_tcp_speed} m/s",
+            )
         wr = self.max_tcp_rot_speed if rot_speed is None else rot_speed
         if wr > self.max_tcp_rot_speed + 1e-12 or wr <= 0:
-            raise SafetyError(f"{self.name}: TCP rotation speed {wr:.3f} rad/s outside (0, "
-                              f"{self.max_tcp_rot_speed:.3f}]", "lower rot_speed")
+            raise SafetyError(
+                f"{self.name}: TCP rotation speed {wr:.3f} rad/s outside (0, {self.max_tcp_rot_speed:.3f}]",
+                "lower rot_speed",
+            )
         ar = rot_accel if rot_accel is not None else accel * wr / speed
         A, B = np.asarray(T0, dtype=float), np.asarray(T1, dtype=float)
         L = float(np.linalg.norm(B[:3, 3] - A[:3, 3]))
         th = rotation_angle(A[:3, :3].T @ B[:3, :3])
         return float(max(trapezoid_time(L, speed, accel), trapezoid_time(th, wr, ar)))
 
-    def linear_path_joints(self, T0: Any, T1: Any, q_seed: Any, step: float = 0.005, *,
-                           step_rot: float = 0.02, max_joint_step: float = 0.3) -> np.ndarray:
+    def linear_path_joints(
+        self,
+        T0: Any,
+        T1: Any,
+        q_seed: Any,
+        step: float = 0.005,
+        *,
+        step_rot: float = 0.02,
+        max_joint_step: float = 0.3,
+    ) -> np.ndarray:
         """Joint trajectory (K, dof) following the straight TCP line T0 -> T1 (slerp orientation) via IK.
 
         Waypoints every ``step`` m / ``step_rot`` rad; each IK is seeded with the previous solution.
@@ -732,7 +886,8 @@ class RobotModel:
             if i > 0 and jump > max_joint_step:
                 j = int(np.argmax(np.abs(q - q_prev)))
                 raise SafetyError(
-                    f"{self.name}: linear path fails at {100 * si:.0f}% of the way (s={si:.3f}): joint {j + 1} "
+                    f"{self.name}: linear path fails at {100 * si:.0f}% of the way (s={si:.3f}): "
+                    f"joint {j + 1} "
                     f"jumps {math.degrees(jump):.1f} deg in one step (singularity or branch flip)",
                     "move in joint space past this region, or change the path or the tool orientation",
                 )
@@ -760,16 +915,33 @@ def build_model(table: dict[str, Any]) -> RobotModel:
         pre, post = f.fixed_parts()
         flange = pre[0] @ _rot_z_batch(f.offset[:1])[0] @ post[0]
     dh = DHTable.from_rows(table["convention"], table["dh"], flange)
-    limits = _deg_pairs(table["joint_limits_deg"]) if "joint_limits_deg" in table else np.asarray(
-        table["joint_limits_rad"], dtype=float)
-    speeds = np.radians(table["joint_speed_deg"]) if "joint_speed_deg" in table else np.asarray(
-        table["joint_speed_rad"], dtype=float)
-    home = np.radians(table["home_deg"]) if "home_deg" in table else np.asarray(table["home_rad"], dtype=float)
+    limits = (
+        _deg_pairs(table["joint_limits_deg"])
+        if "joint_limits_deg" in table
+        else np.asarray(table["joint_limits_rad"], dtype=float)
+    )
+    speeds = (
+        np.radians(table["joint_speed_deg"])
+        if "joint_speed_deg" in table
+        else np.asarray(table["joint_speed_rad"], dtype=float)
+    )
+    home = (
+        np.radians(table["home_deg"]) if "home_deg" in table else np.asarray(table["home_rad"], dtype=float)
+    )
     return RobotModel(
-        name=table["name"], dof=len(table["dh"]), dh=dh, joint_limits=limits, joint_speed_limits=speeds,
-        joint_accel_limits=np.asarray(table["joint_accel"], dtype=float), max_tcp_speed=table["max_tcp_speed"],
-        reach=table["reach"], payload=table["payload"], home=home, max_tcp_rot_speed=table["max_tcp_rot_speed"],
-        aliases=tuple(table["aliases"]), sources=table["sources"],
+        name=table["name"],
+        dof=len(table["dh"]),
+        dh=dh,
+        joint_limits=limits,
+        joint_speed_limits=speeds,
+        joint_accel_limits=np.asarray(table["joint_accel"], dtype=float),
+        max_tcp_speed=table["max_tcp_speed"],
+        reach=table["reach"],
+        payload=table["payload"],
+        home=home,
+        max_tcp_rot_speed=table["max_tcp_rot_speed"],
+        aliases=tuple(table["aliases"]),
+        sources=table["sources"],
     )
 
 
@@ -787,5 +959,7 @@ def get_model(name: str) -> RobotModel:
     known = sorted(MODELS)
     close = difflib.get_close_matches(key, known + sorted(_ALIASES), n=1, cutoff=0.5)
     hint = f"did you mean {close[0]!r}? " if close else ""
-    raise DataError(f"unknown robot model {name!r}; available: {', '.join(known)}",
-                    f"{hint}use one of: {', '.join(known)}")
+    raise DataError(
+        f"unknown robot model {name!r}; available: {', '.join(known)}",
+        f"{hint}use one of: {', '.join(known)}",
+    )

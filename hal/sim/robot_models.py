@@ -37,7 +37,8 @@ def _ramp(speeds_deg: list[float], seconds: float) -> list[float]:
 
 
 # Universal Robots, "DH parameters for calculations of kinematics and dynamics"
-# (universal-robots.com/articles/ur/application-installation/dh-parameters-for-calculations-of-kinematics-and-dynamics/).
+# (universal-robots.com/articles/ur/application-installation/
+#  dh-parameters-for-calculations-of-kinematics-and-dynamics/).
 # UR5 (CB3) technical specifications: reach 850 mm, payload 5 kg, all joints +-360 deg at 180 deg/s,
 # tool typical speed 1 m/s.
 UR5: dict[str, Any] = {
@@ -61,8 +62,8 @@ UR5: dict[str, Any] = {
     "max_tcp_rot_speed": _PI,  # ASSUMED: 180 deg/s, the wrist joints' top speed
     "reach": 0.850,
     "payload": 5.0,
-    # shoulder -90, elbow +90: upper arm vertical, forearm level; tool pointing straight down.
-    "home_deg": [0.0, -110.0, 110.0, -90.0, -90.0, 0.0],
+    # flange 0.34 m in front (base +x), 0.41 m up, tool pointing straight down.
+    "home_deg": [180.0, -110.0, 110.0, -90.0, -90.0, 0.0],
     "sources": "UR DH-parameter article (UR5 table); UR5 CB3 technical specifications",
 }
 
@@ -89,7 +90,7 @@ UR10E: dict[str, Any] = {
     "max_tcp_rot_speed": _PI,  # ASSUMED
     "reach": 1.300,
     "payload": 10.0,
-    "home_deg": [0.0, -110.0, 110.0, -90.0, -90.0, 0.0],
+    "home_deg": [180.0, -110.0, 110.0, -90.0, -90.0, 0.0],
     "sources": "UR DH-parameter article (UR10e table); UR10e technical specifications",
 }
 
@@ -99,7 +100,7 @@ UR10E: dict[str, Any] = {
 # Datasheet: reach 855 mm, payload 3 kg.
 PANDA: dict[str, Any] = {
     "name": "franka-panda",
-    "aliases": ("franka", "panda", "fr3-panda"),
+    "aliases": ("franka", "panda"),
     "convention": "modified",
     # a_{i-1}, alpha_{i-1}, d_i, offset_i
     "dh": [
@@ -169,7 +170,7 @@ AUBO_I5: dict[str, Any] = {
 # (upper arm vertical, lower arm horizontal, tool0 z pointing forward along base x).
 ABB_IRB2600: dict[str, Any] = {
     "name": "abb-irb2600",
-    "aliases": ("irb2600", "abb-irb2600-12-1.65", "abb"),
+    "aliases": ("irb2600", "abb-irb2600-12-1.65"),
     "convention": "modified",
     "dh": [
         (0.0, 0.0, 0.445, 0.0),
@@ -181,15 +182,21 @@ ABB_IRB2600: dict[str, Any] = {
     ],
     # tool0: 85 mm along the axis-6 line (frame 6 z), same orientation as frame 6.
     "flange": [(0.0, 0.0, 0.085, 0.0)],
-    "joint_limits_deg": [(-180.0, 180.0), (-95.0, 155.0), (-180.0, 75.0), (-400.0, 400.0), (-120.0, 120.0),
-                         (-400.0, 400.0)],
+    "joint_limits_deg": [
+        (-180.0, 180.0),
+        (-95.0, 155.0),
+        (-180.0, 75.0),
+        (-400.0, 400.0),
+        (-120.0, 120.0),
+        (-400.0, 400.0),
+    ],
     "joint_speed_deg": [175.0, 175.0, 175.0, 360.0, 360.0, 510.0],
     "joint_accel": _ramp([175.0, 175.0, 175.0, 360.0, 360.0, 510.0], 0.25),
     "max_tcp_speed": 7.0,  # ASSUMED: RAPID's largest predefined speeddata (v7000); not in the spec
     "max_tcp_rot_speed": 2 * _PI,  # ASSUMED
     "reach": 1.65,
     "payload": 12.0,
-    "home_deg": [0.0, 0.0, 0.0, 0.0, 90.0, 0.0],
+    "home_deg": [0.0, 10.0, 30.0, 0.0, 50.0, 0.0],
     "sources": "ABB product specification IRB 2600 (3HAC035960-001), variant 12/1.65",
 }
 

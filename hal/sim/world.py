@@ -1,0 +1,89 @@
+"""The simulated cell's shared world: the workpieces, the frame tree and the simulated clock.
+
+Simulated devices of one run share one :class:`SimWorld` (through the run's ``shared`` dict).
+The world frame is the cell's fixed frame; each robot registers its base (its mount) and a live
+flange frame ``<role>.flange``; a camera mounted on ``<role>.flange`` follows the robot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from weldcell.hal.sim.workpieces import Workpiece, make_workpiece
+from weldcell.sdk.errors import DataError
+from weldcell.sdk.geometry import T_from_rpy
+
+
+class SimClock:
+    """Simulated time (s): advanced by simulated motions and sensor frames, never by the wall clock."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def advance(self, dt: float) -> float:
+        self.t += max(0.0, float(dt))
+        return self.t
+
+
+class SimWorld:
+    """Workpieces placed in the world, live frames of robots, and the ray-casting scene."""
+
+    def __init__(self, workpieces: list[Workpiece], seed: int = 0, table_height: float = 0.0) -> None:
+        self.workpieces = workpieces
+        self.table_height = table_height
+        self.clock = SimClock()
+        self.rng = np.random.default_rng(seed)
+        self._frames: dict[str, Callable[[], np.ndarray]] = {"world": lambda: np.eye(4)}
+        self._scene = None
+        self.robots: dict[str, object] = {}
+
+    @classmethod
+    def from_section(cls, section, seed: int = 0) -> SimWorld:
+        """Build from a profile's ``[sim]`` section (:class:`weldcell.sdk.profile.SimSection`)."""
+        parts = []
+        for i, w in enumerate(section.workpieces):
+            try:
+                wp = make_workpiece(w.kind, **w.params)
+            except DataError as e:
+                raise DataError(f"[sim] workpieces[{i}]: {e.message}", e.fix) from None
+            parts.append(wp.placed(T_from_rpy(w.rpy, w.xyz)))
+        return cls(parts, seed=seed, table_height=section.table_height)
+
+    # -- frames ----------------------------------------------------------------------------------
+    def add_frame(self, name: str, fn: Callable[[], np.ndarray]) -> None:
+        """Register a live frame: ``fn()`` returns ``T_world_<name>`` now."""
+        self._frames[name] = fn
+
+    def T_world(self, frame: str) -> np.ndarray:
+        """``T_world_frame`` now ('world', 'base' = the first robot's base, '<role>.flange', ...)."""
+        if frame == "base" and "base" not in self._frames:
+            bases = [k for k in self._frames if k.endswith(".base")]
+            if bases:
+                frame = bases[0]
+            else:
+                return np.eye(4)
+        if frame not in self._frames:
+            raise DataError(f"the simulated cell has no frame '{frame}'; frames: {', '.join(self._frames)}",
+                            "mount the device on 'world' or on '<robot role>.flange'")
+        return self._frames[frame]()
+
+    # -- geometry --------------------------------------------------------------------------------
+    def meshes(self) -> list:
+        """Every workpiece mesh in the world frame, plus the table top as a large thin box."""
+        import open3d as o3d
+
+        meshes = [w.mesh_in_world() for w in self.workpieces]
+        table = o3d.geometry.TriangleMesh.create_box(3.0, 3.0, 0.02)
+        table.translate([-1.5, -1.5, self.table_height - 0.02 - 1e-4])
+        meshes.append(table)
+        return meshes
+
+    def seams_in_world(self) -> list:
+        """Ground-truth seams of every workpiece, in the world frame."""
+        out = []
+        for i, w in enumerate(self.workpieces):
+            for s in w.seams_in_world():
+                out.append((f"{i}:{w.kind}", s))
+        return out

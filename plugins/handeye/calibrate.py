@@ -1,0 +1,470 @@
+"""One entry point for every configuration and method: :func:`calibrate`.
+
+Every configuration of §2.1.1 reduces to one of two kinds of sub-problem:
+
+* **fixed camera** (eye-on-base eq. 4; eye-on-arm with the marker on the flange, eq. 8, in the
+  {Arm} frame; co-manipulation eq. 6b): the feature rides on a carrier with known poses ``P_i``
+  (``T_frame_flange``); unknown ``T_frame_camera``; flange method: ``P_i f = X c_i``.
+* **moving camera** (eye-in-hand eq. 1; eye-on-arm with the marker fixed in the cell, eq. 7;
+  co-manipulation eq. 6a): the camera rides on the carrier ``P_i`` (``T_base_carrier``); unknown
+  ``T_carrier_camera``; flange method: ``P_i X c_i = g`` i.e. ``X c_i = inv(P_i) g``.
+
+Co-manipulation is decomposed as eq. 6: (a) a moving-camera problem for robot 1 with robot 2 parked,
+(b) a fixed-camera problem for robot 2 with robot 1 parked, (c) ``T_base1_base2 = T_base1_flange1
+T_flange1_camera inv(T_base2_camera)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, fields
+from pathlib import Path
+
+import numpy as np
+from weldcell.plugins.handeye import classical, diagnostics
+from weldcell.plugins.handeye.circle import PAPER_E_D, PAPER_E_R, PAPER_K_MAX, PAPER_RADIUS, ransac_circle
+from weldcell.plugins.handeye.featurefit import fit_with_unknown_point
+from weldcell.plugins.handeye.iterative import iterative_pool
+from weldcell.plugins.handeye.pointfit import robust_point_fit, scaled_svd_fit
+from weldcell.plugins.handeye.result import CONFIGS, HandEyeResult, HandEyeSample, config_name
+from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
+from weldcell.plugins.handeye.verification import (
+    ConsensusVerifier,
+    IcpVerifier,
+    radius_cost,
+    translation_cost,
+)
+from weldcell.sdk.cloud import UNIT_SCALE, read_cloud
+from weldcell.sdk.errors import DataError, UsageError
+from weldcell.sdk.geometry import invert, rotation_angle
+
+FLANGE_METHODS = ("flange", "flange-svd", "flange-iterative")
+METHODS = FLANGE_METHODS + classical.HAND_EYE_METHODS + classical.ROBOT_WORLD_METHODS
+
+DEFAULTS: dict = {
+    "feature": "tcp",  # fixed camera: the feature in the flange frame ("tcp" = [0,0,0], xyz, or "estimate")
+    "feature_base": "origin",  # moving camera: the fixed feature in the base ("origin", xyz, or "estimate")
+    "allow_coplanar": False,
+    "min_samples": 4,
+    "inlier_threshold": None,  # m; None = robust (n_sigma x MAD-based sigma)
+    "n_sigma": 3.0,
+    "min_threshold": 0.0003,  # m; floor of the automatic inlier threshold (scanner precision)
+    "cloud_units": "m",
+    "circle": {"radius": PAPER_RADIUS, "e_d": PAPER_E_D, "e_r": PAPER_E_R, "k_max": PAPER_K_MAX},
+    "segment": {},
+    "verifier": "consensus",  # Algorithm 1: "consensus", "icp" (with "verification"), or a callable
+    "verification": None,
+    "cost": "translation",  # or "radius" (§4.2, with work_radius)
+    "work_radius": 0.3,
+    "e_required": 0.0,
+    "k_max": 10_000,
+    "compensate": False,
+    "bootstrap": 100,
+    "backend": "auto",
+    "board": None,
+    "intrinsics": None,
+    "seed": 0,
+}
+
+
+def _settings(user: dict) -> dict:
+    unknown = set(user) - set(DEFAULTS)
+    if unknown:
+        raise UsageError(
+            f"unknown hand-eye settings {sorted(unknown)}", f"known settings: {', '.join(DEFAULTS)}"
+        )
+    s = {**DEFAULTS, **user}
+    s["circle"] = {**DEFAULTS["circle"], **(user.get("circle") or {})}
+    return s
+
+
+def _point(value, default_name: str) -> np.ndarray | str:
+    if isinstance(value, str):
+        if value == "estimate":
+            return "estimate"
+        if value in ("tcp", "origin"):
+            return np.zeros(3)
+        raise UsageError(
+            f"{default_name}: unknown value '{value}'", "give [x, y, z] in metres, 'estimate' or the default"
+        )
+    p = np.asarray(value, float).reshape(-1)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise UsageError(f"{default_name} must be 3 numbers in metres", "e.g. [0, 0, 0.012]")
+    return p
+
+
+def measure_flange_centre(cloud, s: dict) -> tuple[np.ndarray, dict]:
+    """Flange centre in the camera (m) from a raw scan: segmentation then RANSAC circle."""
+    if isinstance(cloud, str | Path):
+        pts = read_cloud(cloud, units=s["cloud_units"], frame="camera").points
+    else:
+        pts = np.asarray(getattr(cloud, "points", cloud), float) * UNIT_SCALE[s["cloud_units"]]
+    seg_fields = {f.name for f in fields(SegmentSettings)}
+    bad = set(s["segment"]) - seg_fields
+    if bad:
+        raise UsageError(f"unknown segment settings {sorted(bad)}", f"known: {', '.join(sorted(seg_fields))}")
+    seg = segment_flange(pts, SegmentSettings(**s["segment"]))
+    circ = ransac_circle(seg.face, rng=s["seed"], **s["circle"])
+    return circ.center, {
+        "segment": seg.report,
+        "radius": circ.radius,
+        "circle_rms": circ.rms,
+        "support": circ.stats["support"],
+    }
+
+
+def _p_cam(samples: list[HandEyeSample], s: dict) -> tuple[np.ndarray, list[int], list[str], list[dict]]:
+    pts, keep, warns, reports = [], [], [], []
+    for i, smp in enumerate(samples):
+        if smp.p_cam is not None:
+            pts.append(np.asarray(smp.p_cam, float))
+            keep.append(i)
+            reports.append({})
+            continue
+        if smp.cloud is None:
+            raise DataError(f"sample {i} has neither p_cam nor a cloud", "give the flange centre or the scan")
+        ss = dict(s)
+        ss["cloud_units"] = smp.meta.get("cloud_units", s["cloud_units"])
+        try:
+            c, rep = measure_flange_centre(smp.cloud, ss)
+        except DataError as e:
+            warns.append(f"sample {i}: flange not found, sample skipped ({e.message})")
+            continue
+        pts.append(c)
+        keep.append(i)
+        reports.append(rep)
+    if not pts:
+        raise DataError("the flange was not found in any scan", "check the segmentation and circle settings")
+    return np.array(pts), keep, warns, reports
+
+
+def _board_poses(samples: list[HandEyeSample], s: dict) -> np.ndarray:
+    out = []
+    for i, smp in enumerate(samples):
+        if smp.T_cam_target is not None:
+            out.append(np.asarray(smp.T_cam_target, float))
+        elif smp.image is not None:
+            from weldcell.plugins.handeye.board import BoardSpec, board_pose
+
+            if s["intrinsics"] is None:
+                raise UsageError("board images need camera intrinsics", "pass intrinsics=(K, dist)")
+            spec = s["board"] if isinstance(s["board"], BoardSpec) else BoardSpec(**(s["board"] or {}))
+            K, dist = s["intrinsics"]
+            out.append(board_pose(smp.image, spec, K, dist).T_cam_board)
+        else:
+            raise DataError(
+                f"sample {i} has no board pose or image", "target-based methods need T_cam_target or image"
+            )
+    return np.array(out)
+
+
+def _solve(
+    kind: str,
+    P: np.ndarray | None,
+    samples: list[HandEyeSample],
+    method: str,
+    s: dict,
+    p_base: np.ndarray | None = None,
+) -> dict:
+    """Solve one fixed-camera or moving-camera sub-problem; returns X, residuals, inliers, extra."""
+    warnings: list[str] = []
+    metrics: dict = {}
+    if method in FLANGE_METHODS:
+        c, keep, w, reports = _p_cam(samples, s)
+        warnings += w
+        metrics["skipped_samples"] = [i for i in range(len(samples)) if i not in keep]
+        if any(reports):
+            metrics["flange_detection"] = reports
+        diagnostics.check_finite("p_cam", c)
+        diagnostics.check_units("p_cam", c)
+        q = _point(
+            s["feature"] if kind == "fixed" else s["feature_base"],
+            "feature" if kind == "fixed" else "feature_base",
+        )
+        if P is not None:
+            P = P[keep]
+            diagnostics.check_finite("robot poses", P)
+            diagnostics.check_units("robot positions", P[:, :3, 3])
+        if isinstance(q, str):  # estimate the feature position too
+            if method == "flange-iterative":
+                raise UsageError(
+                    "Algorithm 1 needs a known reference point", "give feature=[x,y,z] or use method 'flange'"
+                )
+            if P is None:
+                raise DataError(
+                    "estimating the feature needs robot poses, not only positions", "give T_base_flange"
+                )
+            B = P if kind == "fixed" else np.linalg.inv(P)
+            diagnostics.check_point_diversity(
+                c, max(5, s["min_samples"]), allow_coplanar=s["allow_coplanar"], what="camera points"
+            )
+            ff = fit_with_unknown_point(
+                c,
+                B,
+                robust=(method == "flange"),
+                n_sigma=s["n_sigma"],
+                min_threshold=s["min_threshold"],
+                rng=s["seed"],
+            )
+            X, res, inl = ff.T, ff.residuals, ff.inliers
+            extra = {"feature_flange" if kind == "fixed" else "feature_base": ff.q}
+
+            def refit(idx):
+                return fit_with_unknown_point(c[idx], B[idx], robust=False).T
+        else:
+            if kind == "fixed":
+                dst = p_base[keep] if P is None else P[:, :3, :3] @ q + P[:, :3, 3]
+            else:
+                Pi = np.linalg.inv(P)
+                dst = Pi[:, :3, :3] @ q + Pi[:, :3, 3]
+            diagnostics.check_finite("reference points", dst)
+            diagnostics.check_units("reference points", dst)
+            warnings += diagnostics.check_point_diversity(
+                dst, s["min_samples"], allow_coplanar=s["allow_coplanar"]
+            )
+            full = scaled_svd_fit(c, dst)
+            metrics["svd_scale"] = full.scale
+            if abs(np.log10(max(full.scale, 1e-12))) > 1.5:
+                raise DataError(
+                    f"camera and robot points differ in scale by {full.scale:.4g}x (mixed mm and m)",
+                    "declare the units of p_cam, clouds and robot poses so all are converted to metres",
+                )
+            extra = {}
+            if method == "flange-svd":
+                X, res, inl = full.T, full.residuals, np.ones(len(c), bool)
+                metrics["reflection_guarded"] = full.reflection_guarded
+            elif method == "flange":
+                rf = robust_point_fit(
+                    c,
+                    dst,
+                    threshold=s["inlier_threshold"],
+                    n_sigma=s["n_sigma"],
+                    min_threshold=s["min_threshold"],
+                    rng=s["seed"],
+                )
+                X, res, inl = rf.T, rf.residuals, rf.inliers
+                metrics["inlier_threshold"] = rf.threshold
+                metrics["robust_sigma"] = rf.sigma
+            else:
+                X, res, inl, m2 = _algorithm1(kind, P, c, dst, s)
+                metrics.update(m2)
+
+            def refit(idx):
+                return scaled_svd_fit(c[idx], dst[idx]).T
+
+        n_in = int(np.sum(inl))
+        if s["bootstrap"] and n_in >= 5 and method != "flange-iterative":
+            idx_in = np.flatnonzero(inl)
+            metrics["bootstrap"] = diagnostics.bootstrap(
+                lambda i: refit(idx_in[i]), n_in, s["bootstrap"], s["seed"]
+            )
+        resid_full = np.full(len(samples), np.nan)
+        inl_full = np.zeros(len(samples), bool)
+        resid_full[keep], inl_full[keep] = res, inl
+        return {
+            "X": X,
+            "residuals": resid_full,
+            "inliers": inl_full,
+            "extra": extra,
+            "metrics": metrics,
+            "warnings": warnings,
+        }
+    # target-based
+    C = _board_poses(samples, s)
+    if P is None:
+        raise DataError("target-based methods need robot poses", "give T_base_flange for every sample")
+    diagnostics.check_finite("robot poses", P)
+    diagnostics.check_finite("board poses", C)
+    diagnostics.check_units("robot positions", P[:, :3, 3])
+    diagnostics.check_units("board positions", C[:, :3, 3])
+    warnings += diagnostics.check_rotation_diversity(P[:, :3, :3])
+    cfg = "eye-on-base" if kind == "fixed" else "eye-in-hand"
+    solver = classical.solve_hand_eye if method in classical.HAND_EYE_METHODS else classical.solve_robot_world
+    X, info = solver(P, C, cfg, method, backend=s["backend"])
+    res = info.pop("residuals")
+    metrics["backend"] = info.pop("backend")
+    if s["bootstrap"]:
+        metrics["bootstrap"] = diagnostics.bootstrap(
+            lambda i: solver(P[i], C[i], cfg, method, backend=s["backend"])[0],
+            len(P),
+            min(s["bootstrap"], 50),
+            s["seed"],
+        )
+    return {
+        "X": X,
+        "residuals": res,
+        "inliers": np.ones(len(P), bool),
+        "extra": info,
+        "metrics": metrics,
+        "warnings": warnings,
+    }
+
+
+def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
+    cost = translation_cost if s["cost"] == "translation" else radius_cost(float(s["work_radius"]))
+    v = s["verifier"]
+    sees = False
+    if v == "consensus":
+        verifier, sees = ConsensusVerifier(c, dst), True
+    elif v == "icp":
+        ver = s["verification"] or {}
+        if kind != "fixed" or not {"cloud", "T_base_flange", "model"} <= set(ver):
+            raise UsageError(
+                "the ICP verifier needs verification={'cloud', 'T_base_flange', 'model'} (fixed camera)",
+                "give a verification scan, its robot pose and a flange model (flange_model module)",
+            )
+        cloud = ver["cloud"]
+        if isinstance(cloud, str | Path):
+            cloud = read_cloud(cloud, units=s["cloud_units"], frame="camera").points
+        verifier = IcpVerifier(
+            np.asarray(ver["model"], float),
+            np.asarray(ver["T_base_flange"], float),
+            np.asarray(cloud, float),
+            **ver.get("icp", {}),
+        )
+    elif callable(v):
+        verifier = v
+    else:
+        raise UsageError(f"unknown verifier {v!r}", "use 'consensus', 'icp' or a callable H -> e")
+    pr = iterative_pool(
+        c, dst, verifier, cost, float(s["e_required"]), int(s["k_max"]), verifier_sees_count=sees
+    )
+    X = pr.H_compensated if (s["compensate"] and pr.H_compensated is not None) else pr.H
+    res = np.linalg.norm(c @ X[:3, :3].T + X[:3, 3] - dst, axis=1)
+    inl = np.zeros(len(c), bool)
+    inl[pr.pool] = True
+    m = {
+        "pool": pr.pool,
+        "cost": pr.cost,
+        "converged": pr.converged,
+        "pairs_used": pr.n_used,
+        "cost_history": pr.history.tolist(),
+        "compensated": bool(s["compensate"] and pr.H_compensated is not None),
+        "e_optimal": None if pr.e is None else pr.e,
+    }
+    return X, res, inl, m
+
+
+def _poses(samples, attr) -> np.ndarray | None:
+    vals = [getattr(x, attr) for x in samples]
+    if all(v is None for v in vals):
+        return None
+    if any(v is None for v in vals):
+        raise DataError(f"some samples lack {attr}", f"give {attr} for every sample or for none")
+    return np.array(vals, float)
+
+
+def calibrate(samples, config: str | None = None, method: str = "flange", **settings) -> HandEyeResult:
+    """Hand-eye calibration for ``config`` in {eye-on-base, eye-in-hand, eye-on-arm, co-manipulation}.
+
+    ``method``: "flange" (flange centres, outlier-proof least-median fit refined by eqs. 10-12 on the
+    inliers — the default), "flange-svd" (eqs. 9-12 on all samples, the paper's Table 1 baseline),
+    "flange-iterative" (Algorithm 1), "tsai"/"park"/"horaud"/"andreff"/"daniilidis" (AX=XB) or
+    "shah"/"li" (AX=YB) from board poses or images. ``samples``: a list of
+    :class:`HandEyeSample` or a SampleSet (its config is used when ``config`` is None). Settings and
+    defaults: :data:`DEFAULTS`. Raises DataError for unusable data (too few, NaN, mixed units,
+    coplanar/collinear, rotation-poor), UsageError for wrong settings.
+    """
+    if hasattr(samples, "samples"):
+        config = config or samples.config
+        samples = samples.samples
+    config = config_name(config or "eye-on-base")
+    method = method.lower()
+    if method not in METHODS:
+        raise UsageError(f"unknown hand-eye method '{method}'", f"use one of {', '.join(METHODS)}")
+    s = _settings(settings)
+    samples = list(samples)
+    if not samples:
+        raise DataError("no samples", "collect robot poses with flange scans or board views")
+    name = CONFIGS[config][0]
+    if config == "co-manipulation":
+        a = [x for x in samples if x.phase == "a"]
+        b = [x for x in samples if x.phase == "b"]
+        if not a or not b:
+            raise DataError(
+                f"co-manipulation needs phase 'a' and 'b' samples (got {len(a)} and {len(b)})",
+                "phase a: robot 1 moves, robot 2 parked; phase b: robot 1 parked, robot 2 moves (eq. 6)",
+            )
+        if method in FLANGE_METHODS and s["feature_base"] == "origin":
+            s["feature_base"] = "estimate"  # robot 2's parked flange is not at robot 1's base origin
+        ra = _solve("moving", _poses(a, "T_base_flange"), a, method, s)
+        rb = _solve("fixed", _poses(b, "T_base2_flange2"), b, method, s)
+        P1 = _poses(b, "T_base_flange")
+        if P1 is None:
+            raise DataError(
+                "phase b samples need robot 1's parked T_base_flange", "record it with every sample"
+            )
+        moved = max(rotation_angle(invert(P1[0]) @ p) for p in P1)
+        if moved > 1e-3 or np.ptp(P1[:, :3, 3], axis=0).max() > 1e-4:
+            raise DataError("robot 1 moved during phase b", "park robot 1 while robot 2 moves (eq. 6b)")
+        T_f1c, T_b2c = ra["X"], rb["X"]
+        X = P1[0] @ T_f1c @ invert(T_b2c)  # eq. 6c
+        return HandEyeResult(
+            T=X,
+            name=name,
+            config=config,
+            method=method,
+            residuals=np.r_[ra["residuals"], rb["residuals"]],
+            inliers=np.r_[ra["inliers"], rb["inliers"]],
+            metrics={"phase_a": ra["metrics"], "phase_b": rb["metrics"]},
+            settings=_public(s),
+            extra={
+                "T_flange1_camera": T_f1c,
+                "T_base2_camera": T_b2c,
+                **{f"a_{k}": v for k, v in ra["extra"].items()},
+                **{f"b_{k}": v for k, v in rb["extra"].items()},
+            },
+            warnings=ra["warnings"] + rb["warnings"],
+        )
+    G = _poses(samples, "T_base_flange")
+    if config == "eye-on-base":
+        r = _solve("fixed", G, samples, method, s, p_base=_poses(samples, "p_base"))
+    elif config == "eye-in-hand":
+        if G is None:
+            raise DataError("eye-in-hand needs T_base_flange for every sample", "record the flange poses")
+        r = _solve("moving", G, samples, method, s)
+    else:  # eye-on-arm
+        A = _poses(samples, "T_base_arm")
+        if A is None:
+            raise DataError(
+                "eye-on-arm needs T_base_arm (pose of the camera link) for every sample",
+                "read it from the robot's forward kinematics",
+            )
+        if G is not None:  # eq. 8: marker on the flange, seen from the arm link
+            r = _solve("fixed", np.einsum("nij,njk->nik", np.linalg.inv(A), G), samples, method, s)
+        else:  # eq. 7: marker fixed in the cell
+            r = _solve("moving", A, samples, method, s)
+    res = np.asarray(r["residuals"], float)
+    inl = np.asarray(r["inliers"], bool)
+    metrics = dict(r["metrics"])
+    ok = np.isfinite(res)
+    if inl.any():
+        metrics["rms_inliers_m"] = float(np.sqrt(np.mean(res[inl] ** 2)))
+        metrics["max_inlier_m"] = float(np.max(res[inl]))
+    metrics["mean_all_m"] = float(np.mean(res[ok])) if ok.any() else float("nan")
+    metrics["n_samples"], metrics["n_inliers"] = len(samples), int(inl.sum())
+    return HandEyeResult(
+        T=r["X"],
+        name=name,
+        config=config,
+        method=method,
+        residuals=res,
+        inliers=inl,
+        metrics=metrics,
+        settings=_public(s),
+        extra=r["extra"],
+        warnings=r["warnings"],
+    )
+
+
+def _public(s: dict) -> dict:
+    out = {}
+    for k, v in s.items():
+        if k == "verifier" and callable(v):
+            out[k] = type(v).__name__
+        elif k in ("verification", "intrinsics"):
+            out[k] = None if v is None else "given"
+        elif k == "board" and v is not None and not isinstance(v, dict):
+            out[k] = asdict(v)
+        else:
+            out[k] = v
+    return out

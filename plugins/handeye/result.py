@@ -1,0 +1,133 @@
+"""Hand-eye samples, configurations and the result record (``weldcell/hand-eye@1``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from weldcell.sdk.errors import DataError
+
+SCHEMA = "weldcell/hand-eye@1"
+CONVENTION = "p_a = T_a_b @ p_b (T_a_b maps coordinates in frame b into frame a); metres, radians"
+
+#: configuration -> (name of the transform solved for, what it means) (§2.1.1)
+CONFIGS: dict[str, tuple[str, str]] = {
+    "eye-on-base": ("T_base_camera", "camera fixed in the cell, flange/marker on the robot (AX=YB, eq. 4)"),
+    "eye-in-hand": (
+        "T_flange_camera",
+        "camera on the flange, feature/marker fixed to the base (AX=XB, eq. 1)",
+    ),
+    "eye-on-arm": ("T_arm_camera", "camera on an intermediate link {Arm} (eqs. 7-8)"),
+    "co-manipulation": ("T_base1_base2", "camera on robot 1, marker on robot 2, solved as eq. 6 a-c"),
+}
+
+
+def config_name(config: str) -> str:
+    """Normalized configuration name (DataError listing the four for an unknown one)."""
+    c = str(config).strip().lower().replace("_", "-")
+    aliases = {"eye-to-hand": "eye-on-base", "comanipulation": "co-manipulation"}
+    c = aliases.get(c, c)
+    if c not in CONFIGS:
+        raise DataError(f"unknown hand-eye configuration '{config}'", f"use one of {', '.join(CONFIGS)}")
+    return c
+
+
+@dataclass
+class HandEyeSample:
+    """One robot pose with what the camera saw. Units: metres.
+
+    ``T_base_flange``: robot flange pose (robot 1 in co-manipulation); ``p_cam``: the reference
+    feature (flange centre) in the camera; ``cloud``: a raw scan (points (N, 3) m, or a path) to get
+    ``p_cam`` from; ``p_base``: the flange centre in the base when only positions were recorded
+    (point-pair data sets); ``T_cam_target``: a board pose for target-based solvers; ``image``: a board
+    photo; ``T_base_arm``: pose of the camera-carrying link (eye-on-arm); ``T_base2_flange2`` and
+    ``phase`` ("a"/"b"): co-manipulation (eq. 6)."""
+
+    T_base_flange: np.ndarray | None = None
+    p_cam: np.ndarray | None = None
+    p_base: np.ndarray | None = None
+    cloud: Any = None
+    T_cam_target: np.ndarray | None = None
+    image: Any = None
+    T_base_arm: np.ndarray | None = None
+    T_base2_flange2: np.ndarray | None = None
+    phase: str | None = None
+    meta: dict = field(default_factory=dict)
+
+
+@dataclass
+class HandEyeResult:
+    """A hand-eye calibration. ``T`` is the transform called ``name`` (e.g. ``T_base_camera``:
+    camera coordinates into the base frame, ``p_base = T @ p_cam``). ``extra`` holds other solved
+    quantities (feature offsets, the marker transform of AX=YB, co-manipulation parts). Residuals
+    are per sample in metres; ``inliers`` marks the samples used."""
+
+    T: np.ndarray
+    name: str
+    config: str
+    method: str
+    residuals: np.ndarray
+    inliers: np.ndarray
+    metrics: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    convention: str = CONVENTION
+
+    @property
+    def outliers(self) -> list[int]:
+        return np.flatnonzero(~np.asarray(self.inliers, bool)).tolist()
+
+    def to_json(self) -> dict:
+        """The ``weldcell/hand-eye@1`` document."""
+
+        def conv(v):
+            if isinstance(v, np.ndarray):
+                return v.tolist()
+            if isinstance(v, dict):
+                return {k: conv(x) for k, x in v.items()}
+            if isinstance(v, list | tuple):
+                return [conv(x) for x in v]
+            if isinstance(v, np.generic):
+                return v.item()
+            return v
+
+        return {
+            "schema": SCHEMA,
+            "config": self.config,
+            "transform": self.name,
+            "T": np.asarray(self.T).tolist(),
+            "convention": self.convention,
+            "frames": {"from": self.name.split("_")[-1], "to": self.name.split("_")[1]},
+            "units": "m",
+            "method": self.method,
+            "settings": conv(self.settings),
+            "residuals_m": np.asarray(self.residuals).tolist(),
+            "inliers": np.asarray(self.inliers, bool).tolist(),
+            "outliers": self.outliers,
+            "metrics": conv(self.metrics),
+            "extra": conv(self.extra),
+            "warnings": list(self.warnings),
+        }
+
+    @classmethod
+    def from_json(cls, doc: dict) -> HandEyeResult:
+        """Read a ``weldcell/hand-eye@1`` document."""
+        if doc.get("schema") != SCHEMA:
+            raise DataError(f"not a hand-eye result (schema {doc.get('schema')!r})", f"expected '{SCHEMA}'")
+        T = np.asarray(doc["T"], float)
+        if T.shape != (4, 4):
+            raise DataError("hand-eye result T is not 4x4", "write the file again")
+        return cls(
+            T=T,
+            name=doc["transform"],
+            config=doc["config"],
+            method=doc["method"],
+            residuals=np.asarray(doc.get("residuals_m", []), float),
+            inliers=np.asarray(doc.get("inliers", []), bool),
+            metrics=doc.get("metrics", {}),
+            settings=doc.get("settings", {}),
+            extra=doc.get("extra", {}),
+            warnings=doc.get("warnings", []),
+        )

@@ -1,0 +1,122 @@
+"""The simulation protocol of §3.1 as a reusable generator.
+
+Eye-on-base cell: the ground-truth ``T_base_camera`` of eq. 19 (rpy [π, 0, -π/2], t = [0.6, -0.0125,
+1] m); 75 flange poses on a grid in a 0.3 x 0.3 x 0.2 m box with random orientations (roll, pitch,
+yaw each within ±0.3 rad of flange-facing-the-camera); camera points ``p_cam = T_cam_base p_base +
+N(0, σ)`` (eq. 20) for σ from 0.2 to 10 mm, 100 noise realizations per level.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from weldcell.sdk.geometry import T_from_rpy, invert
+
+#: eq. 19
+PAPER_T_BASE_CAMERA = T_from_rpy([3.1415, 0.0, -1.57], [0.6, -0.0125, 1.0])
+PAPER_SIGMAS = np.round(np.arange(0.2, 10.0 + 1e-9, 0.2), 1) * 1e-3
+
+
+@dataclass
+class SimCell:
+    """A simulated eye-on-base data set: robot poses, true TCP positions and the truth."""
+
+    T_base_camera: np.ndarray
+    T_base_flange: np.ndarray  # (n, 4, 4)
+    p_base: np.ndarray  # (n, 3) flange centres in the base
+    p_cam_true: np.ndarray  # (n, 3) the same in the camera
+
+    def noisy_p_cam(self, sigma: float, rng: np.random.Generator) -> np.ndarray:
+        """Eq. 20: ``p_cam = T_cam_base p_base + N(0, σ)`` (isotropic, σ in metres)."""
+        return self.p_cam_true + rng.normal(0.0, sigma, self.p_cam_true.shape)
+
+    def board_poses(
+        self,
+        sigma: float,
+        rng: np.random.Generator,
+        T_flange_target: np.ndarray | None = None,
+        board_size: float = 0.08,
+        grid: int = 5,
+    ) -> np.ndarray:
+        """Noisy target poses ``T_cam_target`` (n, 4, 4) for the target-based solvers: a ``grid`` x
+        ``grid`` board of ``board_size`` m on the flange, each corner measured with the same N(0, σ)
+        3-D noise, and the pose fitted to the corners — the same noise model as the flange points."""
+        from weldcell.plugins.handeye.pointfit import rigid_fit_batch
+
+        T_ft = np.eye(4) if T_flange_target is None else T_flange_target
+        g = np.linspace(-board_size / 2, board_size / 2, grid)
+        X, Y = np.meshgrid(g, g)
+        corners = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+        T_ct = np.einsum("ij,njk,kl->nil", invert(self.T_base_camera), self.T_base_flange, T_ft)
+        meas = np.einsum("nij,kj->nki", T_ct[:, :3, :3], corners) + T_ct[:, None, :3, 3]
+        meas = meas + rng.normal(0.0, sigma, meas.shape)
+        return rigid_fit_batch(np.broadcast_to(corners, meas.shape), meas)
+
+
+def simulate_cell(
+    n_poses: int = 75,
+    box: tuple[float, float, float] = (0.3, 0.3, 0.2),
+    center: tuple[float, float, float] = (0.6, -0.0125, 0.35),
+    max_angle: float = 0.3,
+    T_base_camera: np.ndarray | None = None,
+    grid: bool = True,
+    rng: np.random.Generator | int | None = 0,
+) -> SimCell:
+    """Flange poses of the §3.1 protocol. With ``grid`` the positions are the first ``n_poses``
+    nodes of a 5 x 5 x 3 grid spanning ``box`` (75 nodes, shuffled), else uniform in the box. The
+    flange z axis faces the camera (base -z for the eq. 19 camera looking down), rotated by roll,
+    pitch, yaw uniform in ±``max_angle``."""
+    rng = np.random.default_rng(rng)
+    T_bc = PAPER_T_BASE_CAMERA if T_base_camera is None else np.asarray(T_base_camera, float)
+    b, c = np.asarray(box, float), np.asarray(center, float)
+    if grid:
+        nx = int(np.ceil((n_poses / 3) ** 0.5))
+        gx, gy, gz = (np.linspace(-0.5, 0.5, nx), np.linspace(-0.5, 0.5, nx), np.linspace(-0.5, 0.5, 3))
+        G = np.stack(np.meshgrid(gx, gy, gz, indexing="ij"), -1).reshape(-1, 3)
+        G = G[rng.permutation(len(G))]
+        while len(G) < n_poses:
+            G = np.vstack([G, rng.uniform(-0.5, 0.5, (n_poses - len(G), 3))])
+        pos = c + G[:n_poses] * b
+    else:
+        pos = c + rng.uniform(-0.5, 0.5, (n_poses, 3)) * b
+    # flange z toward the camera: camera z axis in the base, reversed
+    face = Rotation.from_matrix(T_bc[:3, :3]) * Rotation.from_euler("x", np.pi)
+    jitter = Rotation.from_euler("xyz", rng.uniform(-max_angle, max_angle, (n_poses, 3)))
+    R = (face * jitter).as_matrix()
+    T = np.tile(np.eye(4), (n_poses, 1, 1))
+    T[:, :3, :3], T[:, :3, 3] = R, pos
+    p_cam = pos @ invert(T_bc)[:3, :3].T + invert(T_bc)[:3, 3]
+    return SimCell(T_bc, T, pos, p_cam)
+
+
+def render_flange_scan(
+    T_cam_flange: np.ndarray,
+    model: np.ndarray,
+    sigma: float = 0.0001,
+    n_outliers: int = 0,
+    clutter: bool = False,
+    rng: np.random.Generator | int | None = 0,
+) -> np.ndarray:
+    """A synthetic raw scan (N, 3, m, camera frame) of a flange model at ``T_cam_flange``: the
+    model's camera-facing points with N(0, σ) noise, optional uniform outliers around the flange,
+    and optional clutter (a table plane 0.15 m behind the flange and a wrist cylinder)."""
+    rng = np.random.default_rng(rng)
+    P = model @ T_cam_flange[:3, :3].T + T_cam_flange[:3, 3]
+    P = P + rng.normal(0, sigma, P.shape)
+    parts = [P]
+    c = T_cam_flange[:3, 3]
+    if n_outliers:
+        parts.append(c + rng.uniform(-0.05, 0.05, (n_outliers, 3)))
+    if clutter:
+        z = T_cam_flange[:3, 2]
+        u = np.cross(z, [1.0, 0, 0]) if abs(z[0]) < 0.9 else np.cross(z, [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(z, u)
+        ab = rng.uniform(-0.25, 0.25, (20000, 2))
+        parts.append(c - 0.15 * z + ab[:, :1] * u + ab[:, 1:] * v + rng.normal(0, sigma, (20000, 3)))
+        th = rng.uniform(0, 2 * np.pi, 6000)
+        h = rng.uniform(0.02, 0.12, 6000)
+        parts.append(c - h[:, None] * z + 0.037 * (np.cos(th)[:, None] * u + np.sin(th)[:, None] * v))
+    return np.vstack(parts)

@@ -1,0 +1,124 @@
+"""Verification of a hand-eye estimate: the ICP error metric (eq. 13), cost metrics (§3.1, §4.2)
+and compensation (eq. 21).
+
+Conventions: ``H`` is the estimate of ``T_dst_camera`` (eye-on-base: ``T_base_camera``). The error
+``e`` is the 4x4 transform ``T_cam'_cam`` between the calculated camera frame {Cam'} and the true
+one {Cam}, so that the true transform is ``H @ e`` — which is exactly the compensation of eq. 21.
+In simulation ``e = inv(H) @ H_true`` (§3.1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from weldcell.plugins.handeye.pointfit import scaled_svd_fit
+from weldcell.sdk.geometry import T_to_rpy, invert
+
+Verifier = Callable[[np.ndarray], "np.ndarray | None"]
+Cost = Callable[["np.ndarray | None"], float]
+
+
+def translation_cost(e: np.ndarray | None) -> float:
+    """``||δt||₂`` (§3.1): the paper's cost; +inf when verification failed."""
+    return float("inf") if e is None else float(np.linalg.norm(e[:3, 3]))
+
+
+def radius_cost(work_radius: float) -> Cost:
+    """``||(δx, δy, δz, δroll·r, δpitch·r, δyaw·r)||₂`` (§4.2) for a work radius ``r`` (m)."""
+
+    def cost(e: np.ndarray | None) -> float:
+        if e is None:
+            return float("inf")
+        return float(np.linalg.norm(np.r_[e[:3, 3], work_radius * T_to_rpy(e)]))
+
+    return cost
+
+
+def compensate(H: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Eq. 21: ``H_compensated = H_optimal @ e_optimal``."""
+    return np.asarray(H) @ np.asarray(e)
+
+
+def error_components(e: np.ndarray | None) -> dict:
+    """δx, δy, δz (m) and δroll, δpitch, δyaw (rad) of an error transform (NaN when failed)."""
+    if e is None:
+        return {k: float("nan") for k in ("dx", "dy", "dz", "droll", "dpitch", "dyaw")}
+    rpy = T_to_rpy(e)
+    return {"dx": e[0, 3], "dy": e[1, 3], "dz": e[2, 3], "droll": rpy[0], "dpitch": rpy[1], "dyaw": rpy[2]}
+
+
+@dataclass
+class GroundTruthVerifier:
+    """Simulation verifier of §3.1: ``e = inv(H) @ H_true``."""
+
+    H_true: np.ndarray
+
+    def __call__(self, H: np.ndarray) -> np.ndarray:
+        return invert(H) @ self.H_true
+
+
+@dataclass
+class IcpVerifier:
+    """The ICP error metric of eq. 13.
+
+    ``model``: flange model points (M, 3) in the feature frame (:mod:`flange_model`);
+    ``D_v``: the known 4x4 mapping the feature frame into the ``H`` target frame at the verification
+    pose (eye-on-base: ``T_base_flange_v``); ``cloud_v``: the measured verification cloud (K, 3) in
+    the camera frame. The model is predicted into the camera by ``inv(H) @ D_v`` and registered to
+    the measurement by point-to-point ICP; ``E`` (cam' -> cam) gives ``e = inv(E)``. ICP failure
+    (fitness below ``min_fitness`` or an RMSE above ``max_rmse``) returns None, i.e. ``e = +inf``.
+    """
+
+    model: np.ndarray
+    D_v: np.ndarray
+    cloud_v: np.ndarray
+    max_distance: float = 0.005
+    min_fitness: float = 0.3
+    max_rmse: float = 0.002
+    iterations: int = 50
+
+    def __post_init__(self) -> None:
+        import open3d as o3d
+
+        self._target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(self.cloud_v, float)))
+        self._model = np.asarray(self.model, float)
+
+    def __call__(self, H: np.ndarray) -> np.ndarray | None:
+        import open3d as o3d
+
+        pred = invert(H) @ np.asarray(self.D_v, float)
+        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self._model @ pred[:3, :3].T + pred[:3, 3]))
+        reg = o3d.pipelines.registration.registration_icp(
+            src,
+            self._target,
+            self.max_distance,
+            np.eye(4),
+            o3d.pipelines.registration.TransformationEstimationPointToPoint(),
+            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.iterations),
+        )
+        if reg.fitness < self.min_fitness or reg.inlier_rmse > self.max_rmse:
+            return None
+        E = np.asarray(reg.transformation)  # T_cam_cam' (moves the predicted model onto the measurement)
+        return invert(E)  # H_true = H @ inv(E), so e = inv(E) (eq. 21)
+
+
+@dataclass
+class ConsensusVerifier:
+    """Verification without a verification cloud (point-pair data sets): the error of ``H`` against
+    a trimmed least-squares fit to every pair collected so far (the first ``n_seen``); pairs with
+    residual above ``n_sigma`` robust sigmas under ``H`` are left out. ``e = inv(H) @ H_consensus``."""
+
+    src: np.ndarray
+    dst: np.ndarray
+    n_sigma: float = 2.5
+
+    def __call__(self, H: np.ndarray, n_seen: int | None = None) -> np.ndarray | None:
+        src, dst = self.src[:n_seen], self.dst[:n_seen]
+        r = np.linalg.norm(src @ H[:3, :3].T + H[:3, 3] - dst, axis=1)
+        thr = self.n_sigma * 1.4826 * float(np.median(r)) + 1e-12
+        keep = r <= thr
+        if keep.sum() < 3:
+            return None
+        return invert(H) @ scaled_svd_fit(src[keep], dst[keep]).T

@@ -1,0 +1,259 @@
+"""The ``scan-and-plan`` job (paper 000): gesture-guided scan → reconstruction → denoising →
+seam extraction → 6-DOF weld path → metrics, robot programs and a report."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from weldcell.sdk.artifacts import read_json
+from weldcell.sdk.cloud import PointCloud, drop_invalid, read_cloud, write_cloud
+from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
+from weldcell.sdk.geometry import invert
+from weldcell.sdk.settings import Settings
+from weldcell.sdk.units import Duration, Length, Speed
+
+from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
+from weldcell.sdk.scan import PosedScan
+
+
+class ScanAndPlanSettings(Settings):
+    """Settings of the scan-and-plan job."""
+
+    gesture: GestureScanSettings = Field(default_factory=GestureScanSettings, description="the gesture joystick")
+    max_scan_time: Duration = Field(180.0, gt=0, description="end the scan after this much sensor time [s]")
+    max_captures: int = Field(40, ge=1, description="end the scan after this many captures")
+    min_captures: int = Field(1, ge=1, description="fewer captures than this is an error")
+    reconnects: int = Field(3, ge=0, description="reconnection attempts when a device drops mid-scan")
+    execute: bool = Field(False, description="follow the planned weld path with the robot (dry-run aware)")
+    weld_speed: Speed = Field(0.01, gt=0, description="travel speed when executing the path [m/s]")
+    min_depth_points: int = Field(500, ge=1, description="a capture with fewer valid points is refused")
+    roi_min: tuple[Length, Length, Length] | None = Field(
+        None, description="keep only points above this corner of the robot base frame when merging [m]"
+    )
+    roi_max: tuple[Length, Length, Length] | None = Field(
+        None, description="keep only points below this corner of the robot base frame when merging [m]"
+    )
+    approach_distance: Length = Field(0.05, gt=0, description="joint move to this far above the seam start [m]")
+
+
+def hand_eye(ctx) -> tuple[np.ndarray, str]:
+    """``T_flange_camera`` from the profile's calibration file, else from the camera's mount."""
+    f = ctx.calibration_file("hand_eye")
+    if f is not None:
+        doc = read_json(f)
+        T = np.asarray(doc.get("T", doc.get("transform")), dtype=float)
+        if T.shape != (4, 4):
+            raise DataError(f"{f}: no 4x4 'T' in the hand-eye file", "write it with `weldcell calibrate hand-eye`")
+        return T, str(f)
+    cam = ctx.profile.devices["camera"]
+    robot_role = next(iter(r for r, e in ctx.profile.devices.items() if e.plugin.startswith("robot.")), "robot")
+    if cam.mount.parent != f"{robot_role}.flange":
+        raise JobError(
+            "the camera is not mounted on the robot flange and no hand-eye calibration is given",
+            "set [devices.camera.mount] parent = 'robot.flange' (eye-in-hand) or add [calibration] hand_eye = ...",
+        )
+    from weldcell.sdk.geometry import T_from_rpy
+
+    return T_from_rpy(cam.mount.rpy, cam.mount.xyz), "profile mount (nominal)"
+
+
+def _retry(ctx, device, what: str, fn, attempts: int):
+    """Call ``fn``; on a DeviceError recover the device and retry (captures are already saved)."""
+    for k in range(attempts + 1):
+        try:
+            return fn()
+        except DeviceError as e:
+            if k == attempts:
+                raise JobError(
+                    f"{what}: {e.message} (after {attempts} reconnection attempts)",
+                    f"captures so far are saved in {ctx.run_dir}; fix the device and run again with "
+                    f"`weldcell run {ctx.loaded.path} --resume {ctx.run_dir}`",
+                ) from e
+            ctx.reporter.info(f"[yellow]{what}: {e.message}; reconnecting ({k + 1}/{attempts})[/yellow]")
+            device.recover()
+            device.configure()
+            device.activate()
+    raise AssertionError("unreachable")
+
+
+def load_captures(ctx) -> list[PosedScan]:
+    """Scans recorded in state.json (after a resume), read back from the run folder."""
+    scans = []
+    for rec in ctx.state.captures:
+        cloud = read_cloud(ctx.run_dir / rec["file"], units="m", frame="camera", check_scale=False)
+        scans.append(PosedScan(cloud, np.asarray(rec["T_base_flange"], dtype=float), float(rec["stamp"])))
+    return scans
+
+
+def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
+    """Algorithm 1 in a loop: move the camera by hand gestures, capture on 'ok', stop on a fist."""
+    s: ScanAndPlanSettings = ctx.settings
+    robot, camera, sensor = ctx.device("robot"), ctx.device("camera"), ctx.device("gesture")
+    scans = load_captures(ctx)
+    if scans:
+        ctx.reporter.info(f"resuming with {len(scans)} capture(s) already taken")
+    ctl = GestureScanController(s.gesture)
+    refused = 0
+    t0 = None
+    with ctx.step("scan (gesture-guided)", total=s.max_captures) as advance:
+        advance(len(scans), s.max_captures, "captures")
+        while len(scans) < s.max_captures:
+            frame = _retry(ctx, sensor, "gesture sensor", lambda: sensor.read(), s.reconnects)
+            stamp = frame.stamp
+            t0 = stamp if t0 is None else t0
+            if stamp - t0 > s.max_scan_time or getattr(sensor, "finished", False):
+                break
+            state = robot.state()
+            T_base_camera = state.T_base_flange @ T_flange_camera
+            cmd = ctl.update(frame, T_base_camera, stamp=stamp)
+            if cmd.capture:
+                depth = _retry(ctx, camera, "camera", lambda: camera.capture(), s.reconnects)
+                pose = robot.state().T_base_flange
+                cloud = drop_invalid(depth.to_cloud())
+                if len(cloud) < s.min_depth_points:
+                    ctx.reporter.info(f"[yellow]capture refused: only {len(cloud)} valid points (is the part in "
+                                      "view and in range?)[/yellow]")
+                    continue
+                name = f"scans/{len(scans):03d}.ply"
+                write_cloud(ctx.path(name), cloud)
+                ctx.state.add_capture({"file": name, "T_base_flange": pose.tolist(), "stamp": depth.stamp,
+                                       "points": len(cloud)})
+                scans.append(PosedScan(cloud, pose, depth.stamp))
+                advance(len(scans), s.max_captures, f"{len(cloud)} pts")
+            if cmd.stop:
+                break
+            if cmd.target is not None:
+                T_tcp = cmd.target @ invert(T_flange_camera) @ robot.T_flange_tcp
+                try:
+                    robot.move_linear(T_tcp)
+                except SafetyError as e:
+                    refused += 1
+                    if refused == 1 or refused % 50 == 0:
+                        ctx.reporter.info(f"[yellow]gesture target refused by the safety gate: {e.message}[/yellow]")
+    ctx.figures["scan"] = {"captures": len(scans), "refused_targets": refused}
+    if len(scans) < s.min_captures:
+        raise JobError(f"the scan ended with {len(scans)} capture(s); at least {s.min_captures} are needed",
+                       "make the 'ok' sign with the right hand while the part is in view")
+    return scans
+
+
+def crop_to_roi(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[PosedScan]:
+    """Drop each view's points outside the region of interest (robot base frame)."""
+    if lo is None and hi is None:
+        return scans
+    out = []
+    for sc in scans:
+        P = sc.cloud.transformed(sc.T_base_flange @ T_flange_camera).points
+        keep = np.ones(len(P), dtype=bool)
+        if lo is not None:
+            keep &= np.all(P >= np.asarray(lo), axis=1)
+        if hi is not None:
+            keep &= np.all(P <= np.asarray(hi), axis=1)
+        if keep.sum() >= 10:
+            out.append(PosedScan(sc.cloud.select(keep), sc.T_base_flange, sc.timestamp))
+    if not out:
+        raise JobError("no capture has points inside the region of interest",
+                       "check [job.settings] roi_min / roi_max against where the part is")
+    return out
+
+
+def execute(ctx, path, speed: float, approach: float) -> None:
+    """Joint move above each seam's start, then follow its torch poses (all through the safety gate)."""
+    robot = ctx.device("robot")
+    with ctx.step("execute weld path", total=len(path.seams)) as advance:
+        for i, seam in enumerate(path.seams):
+            start = robot.state().T_base_tcp
+            above = seam.poses[0].copy()
+            above[:3, 3] -= approach * above[:3, 2]
+            high = above.copy()  # the approach pose at the current height: joint moves stay clear of the part
+            high[2, 3] = max(start[2, 3], above[2, 3])
+            if robot.gate.model is not None:
+                q = robot.gate.solve(high @ invert(robot.T_flange_tcp), robot.state().q, f"approach of {seam.id}")
+                robot.move_joint(q)
+            else:
+                robot.move_linear(high)
+            robot.move_linear(above)
+            robot.follow_path(np.concatenate([seam.poses, above[None], high[None]]), speed=speed)
+            advance(i + 1)
+
+
+def ground_truth(ctx):
+    """Ground-truth seams in the robot base frame when the cell is simulated, else None."""
+    world = ctx.shared.get("sim.world")
+    if world is None:
+        return None
+    T_base_world = invert(world.T_world("robot.base"))
+    return [(name, s.transformed(T_base_world)) for name, s in world.seams_in_world()]
+
+
+def evaluate(weld_path, gt, standoff: float) -> dict:
+    """Eq. 21 (rasterized F1) and eq. 22 (pose RMSE) of every found seam against its nearest true seam."""
+    from weldcell.plugins.scan_plan.metrics import pose_rmse, seam_f1
+
+    if not gt or not weld_path.seams:
+        return {"seams_found": len(weld_path.seams), "seams_true": len(gt or [])}
+    gt_pts = np.vstack([s.points for _, s in gt])
+    pred_pts = np.vstack([s.points for s in weld_path.seams])
+    out = {"seams_found": len(weld_path.seams), "seams_true": len(gt), "f1": seam_f1(pred_pts, gt_pts, cell=0.002)}
+    per = []
+    for seam in weld_path.seams:
+        name, truth = min(gt, key=lambda g: float(np.mean(np.min(np.linalg.norm(
+            seam.points[::5, None, :] - g[1].points[None, ::5, :], axis=2), axis=1))))
+        poses = seam.poses.copy()
+        poses[:, :3, 3] += standoff * poses[:, :3, 2]  # torch axis meets the seam at the standoff
+        r = pose_rmse(poses, truth.points, truth.approach, truth.travel)
+        per.append({"seam": seam.id, "truth": f"{name}/{truth.id}", **r})
+    out["per_seam"] = per
+    out["translation_rmse_mm"] = float(np.sqrt(np.mean([p["translation_m"] ** 2 for p in per])) * 1000)
+    out["rotation_rmse_deg"] = float(np.degrees(np.sqrt(np.mean([p["rotation_rad"] ** 2 for p in per]))))
+    return out
+
+
+def run(ctx) -> dict:
+    """The whole job; returns the figures written into result.json."""
+    from weldcell.plugins.scan_plan.report import write_report
+
+    s: ScanAndPlanSettings = ctx.settings
+    T_flange_camera, he_source = hand_eye(ctx)
+    ctx.figures["hand_eye_source"] = he_source
+    scans = crop_to_roi(gesture_scan(ctx, T_flange_camera), T_flange_camera, s.roi_min, s.roi_max)
+
+    with ctx.step("reconstruct (merge + linear ICP)", total=len(scans)) as advance:
+        rec = ctx.stage("reconstruct")(scans, T_flange_camera,
+                                       progress=lambda i, n, msg="": advance(i, n, msg))
+        write_cloud(ctx.path("model.ply"), rec.cloud)
+        rec.cloud.meta["viewpoints"] = [(sc.T_base_flange @ T_flange_camera)[:3, 3].tolist() for sc in scans]
+    ctx.figures["reconstruction"] = {"points": len(rec.cloud), "fitness_before": rec.fitness_before,
+                                     "fitness": rec.fitness, "accepted": rec.accepted}
+    with ctx.step("denoise (bilateral filter)"):
+        clean = ctx.stage("denoise")(rec.cloud)
+        write_cloud(ctx.path("model_denoised.ply"), clean)
+    with ctx.step("seams (edge intensity)"):
+        extraction = ctx.stage("seam")(clean)
+    if not extraction.seams:
+        raise JobError("no weld seam was found on the scanned part",
+                       "check the scan covers the joint; lower [stages.seam.settings] t or min_seam_length")
+    with ctx.step("weld path (torch frames + slerp)"):
+        path = ctx.stage("path")(extraction.seams, frame="base")
+    gt = ground_truth(ctx)
+    standoff = ctx.stage_settings("path").standoff
+    with ctx.step("metrics"):
+        path.metrics = {"fitness": rec.fitness, **evaluate(path, gt, standoff)}
+        path.write(ctx.path("weld_path.json"))
+    ctx.figures["metrics"] = path.metrics
+    doc = path.to_json()
+    with ctx.step("export programs"):
+        written = []
+        for spec in ctx.resolved["exporters"]:
+            text = spec.export(doc, spec.settings())
+            name = f"programs/weld_path{spec.suffix}"
+            ctx.write_text(name, text)
+            written.append(name)
+    ctx.figures["programs"] = written
+    if s.execute:
+        execute(ctx, path, s.weld_speed, s.approach_distance)
+    if ctx.profile.output.report:
+        with ctx.step("report"):
+            write_report(ctx, scans, rec, clean, extraction, path, gt)
+    return {"seams": len(path.seams), "captures": len(scans)}

@@ -1,0 +1,684 @@
+"""Weld-seam extraction from a workpiece point cloud (paper 000, section II-E, eqs. 11-17), plus the
+joint classification and polyline chaining a weld path needs.
+
+Paper part (per point, fully vectorised over fixed-width neighbour arrays from one KD-tree query):
+
+* eq. 11 -- adaptive neighbourhood ``N_r(p)``: the points within radius ``r``, grown to the ``m``
+  nearest where fewer than ``m`` lie inside ``r`` (the effective radius ``r_p`` is recorded);
+* eq. 12 -- edge intensity ``I_p = |p - centroid(N_r(p))| / r_p``: the normalised displacement of a
+  point from the centroid of its neighbours (low on smooth surface, a ridge along edges);
+* eq. 13 -- 3-D gradient of the intensity, ``I_k = max_i (I_i - I_p) * delta_k / d^2`` (the steepest
+  neighbour slope projected on axis k, see :func:`intensity_gradient` for why not ``d / delta_k``);
+* eqs. 14-15, 17 -- structure tensor ``H = sum_i G(p, q_i) g_i g_i^T`` over ``N_r(p)`` with the
+  Gaussian of eq. 17 (sigma = standard deviation of the neighbour distances);
+* eq. 16 -- the eigenvalue-free edge test ``Tr(H)^3 / Det(H) >= t``.
+
+Beyond the paper (the paper stops at a set of edge points):
+
+* each edge point is classified from the oriented normals of its two sides (a 2-means split of the
+  neighbour normals): ``concave`` (fillet / lap / corner roots), ``groove`` (V-groove bottoms: concave
+  with a narrow included angle), ``convex`` (plate outlines, web tops), ``boundary`` (one-sided
+  neighbourhood: scan borders, free plate edges) and ``weak`` (sides nearly parallel: noise);
+* weldable points are clustered (KD-tree radius graph, approach directions must agree), each cluster
+  is ordered along a minimum-spanning-tree diameter (works for curved and closed seams), binned along
+  that arclength, snapped onto the intersection line of the two fitted side planes, smoothed and
+  resampled at a fixed spacing into a :class:`SeamPolyline`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spanning_tree
+from scipy.spatial import cKDTree
+from weldcell.sdk.errors import DataError
+
+#: per-point class labels of :attr:`SeamExtraction.labels`
+NONE, CONCAVE, GROOVE, CONVEX, BOUNDARY, WEAK = 0, 1, 2, 3, 4, 5
+LABEL_NAMES = {
+    NONE: "none",
+    CONCAVE: "concave",
+    GROOVE: "groove",
+    CONVEX: "convex",
+    BOUNDARY: "boundary",
+    WEAK: "weak",
+}
+WELDABLE = {"concave": CONCAVE, "groove": GROOVE}
+
+
+@dataclass
+class SeamPolyline:
+    """One ordered weld seam: ``points`` (K, 3) along travel, ``normals`` (K, 3) unit approach
+    directions (pointing into the joint, i.e. from the torch towards the work)."""
+
+    id: int
+    joint_class: str
+    points: np.ndarray
+    normals: np.ndarray
+    closed: bool
+    length: float
+
+    @property
+    def approach(self) -> np.ndarray:
+        """Alias of :attr:`normals`: unit approach directions (K, 3)."""
+        return self.normals
+
+
+@dataclass
+class SeamExtraction:
+    """Result of :func:`extract_seams`. Per-point arrays have one row per input point."""
+
+    edge_mask: np.ndarray  # (N,) bool, eq. 16 edge points
+    score: np.ndarray  # (N,) Tr(H)^3 / Det(H), eq. 16
+    intensity: np.ndarray  # (N,) edge intensity, eq. 12
+    labels: np.ndarray  # (N,) int8, see LABEL_NAMES (NONE for non-edge points)
+    seams: list[SeamPolyline]
+    radius: float  # the radius r used (m)
+    params: dict = field(default_factory=dict)
+
+    def label_names(self) -> np.ndarray:
+        """Per-point class names (N,)."""
+        return np.array([LABEL_NAMES[int(v)] for v in range(6)])[self.labels]
+
+
+# ----------------------------------------------------------------------------- input checks
+
+
+def _as_points(points: np.ndarray, m: int) -> np.ndarray:
+    P = np.asarray(points, dtype=float)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise DataError(
+            f"points must be an (N, 3) array, got shape {P.shape}", "pass x, y, z columns in metres"
+        )
+    if len(P) == 0:
+        raise DataError(
+            "the point cloud is empty", "check that the scan saw the workpiece and that cropping kept it"
+        )
+    if not np.all(np.isfinite(P)):
+        bad = int((~np.all(np.isfinite(P), axis=1)).sum())
+        raise DataError(
+            f"points has {bad} rows with NaN or infinite coordinates",
+            "drop invalid points first (weldcell.sdk.cloud.drop_invalid)",
+        )
+    if len(P) < m + 1:
+        raise DataError(
+            f"the cloud has {len(P)} points but the neighbourhood needs m={m} neighbours (eq. 11)",
+            "pass a denser cloud or a smaller m",
+        )
+    return P
+
+
+def _positive(value: float | None, name: str) -> float | None:
+    if value is None:
+        return None
+    v = float(value)
+    if not np.isfinite(v) or v <= 0:
+        raise DataError(f"{name} must be a positive number, got {value}", f"pass {name} > 0")
+    return v
+
+
+def _unit(v: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), eps)
+
+
+# ----------------------------------------------------------------------------- eqs. 11-17
+
+
+@dataclass
+class Neighbourhood:
+    """Fixed-width neighbour arrays (self excluded): ``idx``/``dist`` (N, K), ``valid`` (N, K) marks
+    the members of ``N_r(p)`` (eq. 11), ``r_eff`` (N,) the grown radius."""
+
+    idx: np.ndarray
+    dist: np.ndarray
+    valid: np.ndarray
+    r_eff: np.ndarray
+
+
+def adaptive_neighbourhood(P: np.ndarray, tree: cKDTree, r: float, m: int, k_max: int) -> Neighbourhood:
+    """Eq. 11: ``N_r(p) = {q : |q - p| < r}``, grown to the ``m`` nearest where fewer lie within ``r``.
+
+    At most ``k_max`` neighbours are kept (the nearest ones) so every array has a fixed width.
+    """
+    k = int(min(max(k_max, m), len(P) - 1))
+    dist, idx = tree.query(P, k=k + 1, workers=2)
+    dist, idx = dist[:, 1:], idx[:, 1:]
+    valid = (dist < r) | (np.arange(k) < m)[None, :]
+    r_eff = np.maximum(r, dist[:, m - 1])
+    return Neighbourhood(idx, dist, valid, r_eff)
+
+
+def edge_intensity(P: np.ndarray, nb: Neighbourhood) -> np.ndarray:
+    """Eq. 12: ``I_p = |p - (1/n) sum q_i| / r`` with the neighbourhood's (grown) radius as ``r``."""
+    w = nb.valid.astype(float)
+    centroid = np.einsum("nk,nkj->nj", w, P[nb.idx]) / w.sum(axis=1, keepdims=True)
+    return np.linalg.norm(P - centroid, axis=1) / nb.r_eff
+
+
+def intensity_gradient(P: np.ndarray, intensity: np.ndarray, nb: Neighbourhood) -> np.ndarray:
+    """Eq. 13: per axis k, the steepest neighbour slope of the intensity, ``(I_i - I_p) delta_k / d^2``.
+
+    The printed eq. 13 reads ``(I_i - I_p) d / delta_k``, which is unbounded when a neighbour has
+    ``delta_k -> 0``; Fig. 5's caption ("the difference ... divided by the coordinate difference")
+    and the Taylor model of eq. 14 both describe a slope. We use the slope towards neighbour i,
+    ``(I_i - I_p) / d``, projected on axis k (``delta_k / d``), and take the neighbour of largest
+    magnitude (sign kept), which equals the caption's quotient for a neighbour on the axis.
+    """
+    dI = intensity[nb.idx] - intensity[:, None]
+    delta = P[nb.idx] - P[:, None, :]
+    slope = dI[..., None] * delta / np.maximum(nb.dist[..., None], 1e-12) ** 2
+    slope = np.where(nb.valid[..., None], slope, 0.0)
+    j = np.abs(slope).argmax(axis=1)
+    return np.take_along_axis(slope, j[:, None, :], axis=1)[:, 0, :]
+
+
+def structure_tensor(grad: np.ndarray, nb: Neighbourhood, sigma: float | None = None) -> np.ndarray:
+    """Eqs. 14-15 smoothed with eq. 17: ``H_p = sum_{q in N_r(p) + p} G(p, q) g_q g_q^T / sum G``.
+
+    ``G`` is the Gaussian of eq. 17 with, unless ``sigma`` (m) is given, the paper's choice: the
+    standard deviation of the distances from p to its neighbours. Returns (N, 3, 3).
+    """
+    if sigma is None:
+        cnt = nb.valid.sum(1)
+        mu = (nb.dist * nb.valid).sum(1) / cnt
+        s = np.sqrt(np.maximum((nb.dist**2 * nb.valid).sum(1) / cnt - mu**2, 0.0))
+        s = np.maximum(s, 1e-3 * nb.r_eff)
+    else:
+        s = np.full(len(grad), float(sigma))
+    w = np.exp(-(nb.dist**2) / (2.0 * s[:, None] ** 2)) * nb.valid  # G(o, i) up to 1/(s sqrt(2 pi))
+    gg = grad[:, :, None] * grad[:, None, :]
+    H = gg + (w[:, None, :] @ gg[nb.idx].reshape(len(w), -1, 9)).reshape(-1, 3, 3)
+    return H / (1.0 + w.sum(axis=1))[:, None, None]
+
+
+def edge_ratio(H: np.ndarray, floor: float = 1.0) -> np.ndarray:
+    """Eq. 16: ``Tr(H)^3 / Det(H)`` (27 for an isotropic H, growing with the eigenvalue spread).
+
+    ``floor`` adds ``floor * median_p(Tr(H_p)) / 3`` to the diagonal first: the gradient energy of the
+    surface noise, so that the ratio measures structure *above the noise* (with ``floor=0`` a flat,
+    noisy patch whose gradients all lie in its plane has ``Det -> 0`` and passes any threshold).
+    """
+    tr = np.trace(H, axis1=1, axis2=2)
+    eps = floor * float(np.median(tr)) / 3.0 if floor > 0 else 0.0
+    eps = max(eps, 1e-12 * float(np.max(tr, initial=0.0)), 1e-300)
+    H = H + eps * np.eye(3)
+    tr = tr + 3.0 * eps
+    det = np.linalg.det(H)
+    with np.errstate(divide="ignore", over="ignore"):
+        return np.where(det > 0, tr**3 / det, np.inf)
+
+
+# ----------------------------------------------------------------------------- normals and classes
+
+
+def point_normals(
+    P: np.ndarray,
+    tree: cKDTree,
+    k: int = 10,
+    oriented: np.ndarray | None = None,
+    up: np.ndarray | None = None,
+) -> np.ndarray:
+    """Unit PCA normals from the ``k`` nearest neighbours, oriented.
+
+    Orientation: along ``oriented`` (given normals, e.g. facing the sensor) when given; otherwise the
+    weld-cell heuristic: towards ``up`` where the surface is not steep, and for steep (wall) normals
+    away from the vertical axis through the cloud centroid (outward for a part standing on a table).
+    """
+    k = int(min(k, len(P)))
+    _, idx = tree.query(P, k=k, workers=2)
+    Q = P[idx]
+    D = Q - Q.mean(axis=1, keepdims=True)
+    C = D.transpose(0, 2, 1) @ D
+    n = np.linalg.eigh(C)[1][:, :, 0]
+    if oriented is not None:
+        ref = oriented
+    else:
+        u = _unit(np.asarray(up if up is not None else (0.0, 0.0, 1.0), dtype=float))
+        out = P - P.mean(axis=0)
+        out = out - np.outer(out @ u, u)
+        steep = np.abs(n @ u) < 0.3
+        ref = np.where(steep[:, None], out, u[None, :])
+    flip = np.einsum("ij,ij->i", n, ref) < 0
+    n[flip] *= -1.0
+    return n
+
+
+def two_sides(nbr_normals: np.ndarray, valid: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, ...]:
+    """Split each row of neighbour normals (B, K, 3) into two sides (2-means on the unit sphere).
+
+    Starts from the principal axis of the normal scatter; returns ``(n_a, n_b, in_a)`` with side
+    normals (B, 3) and the membership (B, K) of side a.
+    """
+    w = valid.astype(float)
+    mean = np.einsum("bk,bkj->bj", w, nbr_normals) / np.maximum(w.sum(1), 1)[:, None]
+    D = (nbr_normals - mean[:, None, :]) * w[..., None]
+    C = D.transpose(0, 2, 1) @ D
+    e = np.linalg.eigh(C)[1][:, :, 2]
+    in_a = np.einsum("bkj,bj->bk", nbr_normals - mean[:, None, :], e) > 0
+    for _ in range(iterations):
+        wa, wb = w * in_a, w * ~in_a
+        na = _unit(np.einsum("bk,bkj->bj", wa, nbr_normals))
+        nbv = _unit(np.einsum("bk,bkj->bj", wb, nbr_normals))
+        in_a = np.einsum("bkj,bj->bk", nbr_normals, na) >= np.einsum("bkj,bj->bk", nbr_normals, nbv)
+    return na, nbv, in_a
+
+
+def _sides_at(P: np.ndarray, N: np.ndarray, tree: cKDTree, X: np.ndarray, radius: float, k: int):
+    k = int(min(k, len(P)))
+    dist, idx = tree.query(X, k=k, workers=2)
+    valid = dist <= radius
+    valid[:, :4] = True
+    na, nb_, in_a = two_sides(N[idx], valid)
+    return idx, valid, na, nb_, in_a
+
+
+def classify_edges(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    cand: np.ndarray,
+    radius: float,
+    *,
+    k: int = 32,
+    min_crease_angle: float = np.deg2rad(35.0),
+    groove_max_angle: float = np.deg2rad(75.0),
+    boundary_shift: float = 0.25,
+):
+    """Class of each candidate edge point (indices ``cand``) from its neighbourhood within ``radius``.
+
+    * sides: 2-means split of the oriented neighbour normals, refined by a two-plane fit -> ``n_a``, ``n_b``;
+    * ``weak``: the sides differ by less than ``min_crease_angle`` and the centroid is not shifted
+      sideways (noise on a smooth surface); ``boundary``: same, but the centroid is shifted by more
+      than ``boundary_shift * radius`` within the tangent plane (one-sided neighbourhood);
+    * two planes are fitted to the neighbourhood (:func:`fit_two_planes`); at a concave crease the
+      points of each side lie in front of (on the normal side of) the other side's plane -- the air is
+      inside the V -- and behind it at a convex one;
+    * concave creases whose included angle (pi - angle(n_a, n_b)) is below ``groove_max_angle`` are
+      ``groove`` (butt V-grooves), the others ``concave`` (fillet, lap, corner roots).
+
+    Returns ``labels`` (M,) and the approach directions ``-(n_a + n_b)/|.|`` (M, 3).
+    """
+    X = P[cand]
+    idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, k)
+    Q = P[idx]
+    na, da, nbv, db, _, _ = fit_two_planes(Q, valid, na, nbv, in_a)
+    # re-split by plane distance, then: is each side in front of (concave) or behind (convex) the other?
+    ra = np.einsum("bkj,bj->bk", Q, na) - da[:, None]
+    rb = np.einsum("bkj,bj->bk", Q, nbv) - db[:, None]
+    on_a = valid & (np.abs(ra) <= np.abs(rb))
+    on_b = valid & ~on_a
+    front = np.where(on_a, rb, 0).sum(1) / np.maximum(on_a.sum(1), 1) + np.where(on_b, ra, 0).sum(
+        1
+    ) / np.maximum(on_b.sum(1), 1)
+    w = valid.astype(float)
+    v = np.einsum("bk,bkj->bj", w, Q) / w.sum(1)[:, None] - X
+    crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
+    bis = _unit(na + nbv)
+    shift = np.linalg.norm(v - np.einsum("ij,ij->i", v, bis)[:, None] * bis, axis=1) / radius
+    labels = np.full(len(cand), WEAK, dtype=np.int8)
+    flat = crease < min_crease_angle
+    labels[flat & (shift > boundary_shift)] = BOUNDARY
+    labels[~flat & (front <= 0)] = CONVEX
+    concave = ~flat & (front > 0)
+    labels[concave] = np.where(np.pi - crease[concave] < groove_max_angle, GROOVE, CONCAVE)
+    return labels, -bis
+
+
+# ----------------------------------------------------------------------------- chaining
+
+
+def _mst_diameter(mst, nodes: np.ndarray) -> np.ndarray:
+    """Ordered node indices (into the full graph) of the longest path of the tree over ``nodes``."""
+    d0 = dijkstra(mst, directed=False, indices=nodes[0])
+    a = nodes[np.argmax(np.where(np.isfinite(d0[nodes]), d0[nodes], -1))]
+    da, pred = dijkstra(mst, directed=False, indices=a, return_predecessors=True)
+    b = nodes[np.argmax(np.where(np.isfinite(da[nodes]), da[nodes], -1))]
+    path = [b]
+    while path[-1] != a:
+        path.append(pred[path[-1]])
+    return np.array(path[::-1])
+
+
+def _smooth(X: np.ndarray, window: int, closed: bool) -> np.ndarray:
+    if window <= 1 or len(X) < 3:
+        return X
+    window = min(window, len(X) if closed else max(1, len(X) // 2 * 2 - 1))
+    return uniform_filter1d(X, size=window, axis=0, mode="wrap" if closed else "nearest")
+
+
+def _resample(X: np.ndarray, A: np.ndarray, spacing: float, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    if closed:
+        X = np.vstack([X, X[:1]])
+        A = np.vstack([A, A[:1]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(X, axis=0), axis=1))])
+    L = s[-1]
+    if L <= 0:
+        return X[:1], A[:1]
+    n = max(int(round(L / spacing)), 1)
+    t = np.linspace(0.0, L, n + 1)
+    if closed:
+        t = t[:-1]
+    Xr = np.column_stack([np.interp(t, s, X[:, j]) for j in range(3)])
+    Ar = _unit(np.column_stack([np.interp(t, s, A[:, j]) for j in range(3)]))
+    return Xr, Ar
+
+
+def fit_two_planes(
+    Q: np.ndarray, valid: np.ndarray, n_a: np.ndarray, n_b: np.ndarray, in_a: np.ndarray, iterations: int = 3
+) -> tuple[np.ndarray, ...]:
+    """Fit two planes to each row of points (B, K, 3) by alternating PCA fits and re-assignment of
+    every point to the closer plane (2-plane k-means). Starts from the normal split ``in_a``; plane
+    normals keep the orientation of ``n_a`` / ``n_b``. Returns ``(n_a, d_a, n_b, d_b, count_a, count_b)``
+    with planes ``n . x = d``."""
+    out = []
+    for _ in range(iterations):
+        out = []
+        for mask, ref in ((valid & in_a, n_a), (valid & ~in_a, n_b)):
+            w = mask.astype(float)
+            cnt = w.sum(1)
+            c = np.einsum("bk,bkj->bj", w, Q) / np.maximum(cnt, 1)[:, None]
+            D = (Q - c[:, None, :]) * w[..., None]
+            n = np.linalg.eigh(D.transpose(0, 2, 1) @ D)[1][:, :, 0]
+            n[np.einsum("ij,ij->i", n, ref) < 0] *= -1.0
+            n[cnt < 3] = ref[cnt < 3]
+            out.append((n, np.einsum("ij,ij->i", n, c), cnt))
+        (na, da, _), (nb, db, _) = out
+        ra = np.abs(np.einsum("bkj,bj->bk", Q, na) - da[:, None])
+        rb = np.abs(np.einsum("bkj,bj->bk", Q, nb) - db[:, None])
+        in_a = ra <= rb
+    (na, da, ca), (nb, db, cb) = out
+    return na, da, nb, db, ca, cb
+
+
+def _refine_on_sides(
+    P: np.ndarray, N: np.ndarray, tree: cKDTree, X: np.ndarray, radius: float, min_crease_angle: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Snap seam nodes onto the intersection line of the two side planes fitted around them.
+
+    Returns the moved nodes, the approach ``-(n_a + n_b)/|.|`` of the fitted planes, a mask of the
+    nodes where the fit was usable (both sides populated, crease angle large enough) and the angle
+    between the two plane normals (pi minus the included angle of the joint)."""
+    idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, 48)
+    na, da, nbv, db, ca, cb = fit_two_planes(P[idx], valid, na, nbv, in_a)
+    ok = (ca >= 3) & (cb >= 3)
+    ok &= np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1, 1)) >= min_crease_angle
+    A = np.stack([na, nbv], axis=1)  # (B, 2, 3)
+    r = np.stack([np.einsum("ij,ij->i", na, X) - da, np.einsum("ij,ij->i", nbv, X) - db], axis=1)
+    AAt = np.einsum("bij,bkj->bik", A, A)
+    AAt[~ok] = np.eye(2)
+    lam = np.linalg.solve(AAt, r[..., None])[..., 0]
+    step = np.einsum("bij,bi->bj", A, lam)
+    step[~ok] = 0.0
+    too_far = np.linalg.norm(step, axis=1) > radius
+    step[too_far] = 0.0
+    crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
+    return X - step, -_unit(na + nbv), ok & ~too_far, crease
+
+
+def _trim_turning_ends(X: np.ndarray, max_turn: float = np.deg2rad(30.0), max_nodes: int = 8) -> slice:
+    """Slice without the end nodes whose step turns by more than ``max_turn`` from the direction of the
+    seam a few nodes further in (an end that folds back or runs onto another edge)."""
+    a, b = 0, len(X)
+    cos = np.cos(max_turn)
+
+    def turned(u: np.ndarray, v: np.ndarray) -> bool:
+        return float(np.dot(u, v)) < cos * float(np.linalg.norm(u) * np.linalg.norm(v))
+
+    for _ in range(max_nodes):
+        if b - a < 8 or not turned(X[a + 1] - X[a], X[a + 6] - X[a + 3]):
+            break
+        a += 1
+    for _ in range(max_nodes):
+        if b - a < 8 or not turned(X[b - 1] - X[b - 2], X[b - 4] - X[b - 7]):
+            break
+        b -= 1
+    return slice(a, b)
+
+
+def _orient(X: np.ndarray, A: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Deterministic travel direction: open seams along their principal axis (sign: largest component
+    positive); closed seams counter-clockwise seen from the torch (looking along the approach)."""
+    if closed:
+        c = X - X.mean(axis=0)
+        area = 0.5 * np.cross(c, np.roll(c, -1, axis=0)).sum(axis=0)
+        flip = float(area @ -A.mean(axis=0)) < 0
+    else:
+        c = X - X.mean(axis=0)
+        u = np.linalg.svd(c, full_matrices=False)[2][0]
+        u = u * np.sign(u[np.argmax(np.abs(u))])
+        flip = float((X[-1] - X[0]) @ u) < 0
+    return (X[::-1].copy(), A[::-1].copy()) if flip else (X, A)
+
+
+def chain_seams(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    weld_idx: np.ndarray,
+    weld_labels: np.ndarray,
+    approach: np.ndarray,
+    *,
+    eps: float,
+    spacing: float,
+    side_radius: float,
+    min_length: float,
+    smooth_window: int,
+    min_crease_angle: float,
+    groove_max_angle: float = np.deg2rad(75.0),
+    joints: tuple[str, ...] = ("concave", "groove"),
+    max_approach_angle: float = np.deg2rad(60.0),
+    min_fit_fraction: float = 0.6,
+    refine: bool = True,
+) -> list[SeamPolyline]:
+    """Cluster the weldable points and turn each cluster into an ordered, resampled polyline.
+
+    Points are linked within ``eps`` when their approach directions differ by less than
+    ``max_approach_angle``; each connected component is ordered along the longest path of its
+    minimum spanning tree (closed when the path's ends are within ``2 eps``), binned at ``spacing``,
+    snapped onto the fitted side planes (``refine``), smoothed over ``smooth_window`` nodes and
+    resampled. Components where fewer than ``min_fit_fraction`` of the nodes show two distinct side
+    planes are dropped (noise on a flat surface), and open seams are trimmed to the fitted nodes.
+    """
+    M = len(weld_idx)
+    if M < 3:
+        return []
+    X = P[weld_idx]
+    pairs = cKDTree(X).query_pairs(eps, output_type="ndarray")
+    if len(pairs):
+        agree = np.einsum("ij,ij->i", approach[pairs[:, 0]], approach[pairs[:, 1]])
+        pairs = pairs[agree > np.cos(max_approach_angle)]
+    i, j = pairs[:, 0], pairs[:, 1]
+    w = np.linalg.norm(X[i] - X[j], axis=1) + 1e-12
+    G = coo_matrix((w, (i, j)), shape=(M, M)).tocsr()
+    n_comp, comp = connected_components(G, directed=False)
+    mst = minimum_spanning_tree(G + G.T)
+    seams: list[SeamPolyline] = []
+    sizes = np.bincount(comp, minlength=n_comp)
+    for c_id in np.argsort(-sizes):
+        nodes = np.flatnonzero(comp == c_id)
+        if len(nodes) < 5:
+            continue
+        path = _mst_diameter(mst, nodes)
+        if len(path) < 3:
+            continue
+        B = X[path]
+        seg = np.linalg.norm(np.diff(B, axis=0), axis=1)
+        s_path = np.concatenate([[0.0], np.cumsum(seg)])
+        L_path = s_path[-1]
+        gap = float(np.linalg.norm(B[-1] - B[0]))
+        closed = gap <= 2.0 * eps and L_path > 6.0 * eps
+        # arclength parameter of every cluster point = that of its nearest backbone node
+        _, near = cKDTree(B).query(X[nodes], workers=2)
+        s = s_path[near]
+        period = L_path + gap if closed else None
+        nbins = max(int(np.ceil((period if closed else L_path) / spacing)), 1)
+        b = np.minimum((s / spacing).astype(int), nbins - 1)
+        cnt = np.bincount(b, minlength=nbins)
+        occ = cnt > 0
+        Xn, An = X[nodes], approach[nodes]
+        Xs = np.stack([np.bincount(b, weights=Xn[:, d], minlength=nbins) for d in range(3)], 1)[occ]
+        As = np.stack([np.bincount(b, weights=An[:, d], minlength=nbins) for d in range(3)], 1)[occ]
+        Xs = Xs / cnt[occ][:, None]
+        As = _unit(As)
+        if len(Xs) < 3:
+            continue
+        if refine:
+            Xs, A_fit, ok, crease = _refine_on_sides(P, N, tree, Xs, side_radius, min_crease_angle)
+            As[ok] = A_fit[ok]
+            if ok.mean() < min_fit_fraction:  # no two distinct side planes along most of it: not a joint
+                continue
+            if not closed:  # trim ends where the two side planes could not be fitted
+                good = np.flatnonzero(ok)
+                sl = slice(good[0], good[-1] + 1)
+                Xs, As, ok, crease = Xs[sl], As[sl], ok[sl], crease[sl]
+                sl = _trim_turning_ends(Xs)
+                Xs, As, ok, crease = Xs[sl], As[sl], ok[sl], crease[sl]
+                if len(Xs) < 3:
+                    continue
+        Xs = _smooth(Xs, smooth_window, closed)
+        As = _unit(_smooth(As, smooth_window, closed))
+        if not closed:  # the smoothed ends can still fold back: cut them
+            sl = _trim_turning_ends(Xs)
+            Xs, As = Xs[sl], As[sl]
+        Xr, Ar = _resample(Xs, As, spacing, closed)
+        ring = np.vstack([Xr, Xr[:1]]) if closed else Xr
+        length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
+        if length < min_length or len(Xr) < 2:
+            continue
+        Xr, Ar = _orient(Xr, Ar, closed)
+        if refine and ok.sum() >= 3:  # the included angle of the fitted side planes decides
+            joint = "groove" if np.pi - np.median(crease[ok]) < groove_max_angle else "concave"
+        else:
+            lab = np.bincount(weld_labels[nodes].astype(int), minlength=6)
+            joint = "groove" if lab[GROOVE] > lab[CONCAVE] else "concave"
+        if joint not in joints:
+            continue
+        seams.append(SeamPolyline(len(seams), joint, Xr, Ar, bool(closed), length))
+    return seams
+
+
+# ----------------------------------------------------------------------------- public entry point
+
+
+def edge_scores(
+    points: np.ndarray,
+    *,
+    m: int = 12,
+    radius: float | None = None,
+    radius_factor: float = 3.0,
+    k_max: int = 32,
+    sigma: float | None = None,
+    floor: float = 1.0,
+):
+    """Eqs. 11-17 on ``points``: returns ``(intensity, ratio, r, tree)``."""
+    P = _as_points(points, m)
+    tree = cKDTree(P)
+    if radius is None:
+        d, _ = tree.query(P, k=2, workers=2)
+        spacing = float(np.median(d[:, 1]))
+        if spacing <= 0:
+            raise DataError("the cloud has duplicate points only", "pass a cloud of a real surface")
+        radius = radius_factor * spacing
+    nb = adaptive_neighbourhood(P, tree, float(radius), m, k_max)
+    I = edge_intensity(P, nb)
+    g = intensity_gradient(P, I, nb)
+    H = structure_tensor(g, nb, sigma)
+    return I, edge_ratio(H, floor), float(radius), tree
+
+
+def extract_seams(
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    m: int = 12,
+    t: float = 40.0,
+    sigma: float | None = None,
+    radius: float | None = None,
+    radius_factor: float = 3.0,
+    k_max: int = 32,
+    floor: float = 1.0,
+    min_intensity: float = 0.15,
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0),
+    joints: tuple[str, ...] = ("concave", "groove"),
+    min_crease_angle: float = np.deg2rad(35.0),
+    groove_max_angle: float = np.deg2rad(75.0),
+    class_radius_factor: float = 2.0,
+    cluster_eps: float | None = None,
+    spacing: float | None = None,
+    min_seam_length: float = 0.01,
+    smooth_window: int = 5,
+    refine: bool = True,
+) -> SeamExtraction:
+    """Edge points (eqs. 11-17) and ordered weld seams of a cloud in metres.
+
+    Args:
+        points: (N, 3) cloud (ideally denoised and voxel down-sampled, spacing ~1-2 mm).
+        normals: optional (N, 3) normals; only their orientation (sign) is used, to orient the PCA
+            normals: pass them facing the sensor/outward. Without them the orientation heuristic of
+            :func:`point_normals` (``up``) is used.
+        m: minimum neighbourhood size (eq. 11). t: threshold on ``Tr(H)^3/Det(H)`` (eq. 16, >= 27).
+        sigma: Gaussian of eq. 17 in m (default: per-point std of neighbour distances, as the paper).
+        radius: r of eq. 11 in m (default ``radius_factor`` x median point spacing).
+        floor: noise floor added to H before eq. 16 (x median Tr(H)/3; 0 = as printed).
+        min_intensity: edge points also need ``I >= min_intensity`` (eq. 12; 0 disables).
+        joints: which classes become seams. min_crease_angle / groove_max_angle: see
+            :func:`classify_edges`. class_radius_factor: side-fit radius as a multiple of r.
+        cluster_eps: link distance of the clustering (default 2 r). spacing: seam resampling step
+            (default r). min_seam_length: shorter seams are dropped (m). smooth_window: nodes.
+    """
+    if m < 3:
+        raise DataError(f"m must be >= 3, got {m}", "use m of about 10-20 neighbours")
+    if not np.isfinite(t) or t < 27.0:
+        raise DataError(f"t must be >= 27 (the minimum of Tr^3/Det, eq. 16), got {t}", "use t of 30-100")
+    for name in joints:
+        if name not in WELDABLE:
+            raise DataError(f"unknown joint class {name!r}", f"choose from {sorted(WELDABLE)}")
+    _positive(radius, "radius")
+    _positive(sigma, "sigma")
+    _positive(spacing, "spacing")
+    P = _as_points(points, m)
+    I, score, r, tree = edge_scores(
+        P, m=m, radius=radius, radius_factor=radius_factor, k_max=k_max, sigma=sigma, floor=floor
+    )
+    edge = (score >= t) & (I >= min_intensity)
+    oriented = None
+    if normals is not None:
+        oriented = np.asarray(normals, dtype=float)
+        if oriented.shape != P.shape or not np.all(np.isfinite(oriented)):
+            raise DataError(
+                f"normals must be a finite {P.shape} array, got {oriented.shape}",
+                "pass one normal per point or normals=None",
+            )
+    N = point_normals(P, tree, 10, oriented, np.asarray(up, dtype=float))
+    labels = np.zeros(len(P), dtype=np.int8)
+    cand = np.flatnonzero(edge)
+    R = class_radius_factor * r
+    seams: list[SeamPolyline] = []
+    if len(cand):
+        lab, appr = classify_edges(
+            P, N, tree, cand, R, min_crease_angle=min_crease_angle, groove_max_angle=groove_max_angle
+        )
+        labels[cand] = lab
+        keep = np.isin(lab, [WELDABLE[j] for j in joints])
+        seams = chain_seams(
+            P,
+            N,
+            tree,
+            cand[keep],
+            lab[keep],
+            appr[keep],
+            eps=cluster_eps or 2.0 * r,
+            spacing=spacing or r,
+            side_radius=R,
+            min_length=min_seam_length,
+            smooth_window=smooth_window,
+            min_crease_angle=min_crease_angle,
+            groove_max_angle=groove_max_angle,
+            joints=joints,
+            refine=refine,
+        )
+    params = dict(m=m, t=t, radius=r, sigma=sigma, floor=floor, min_intensity=min_intensity)
+    return SeamExtraction(edge, score, I, labels, seams, r, params)

@@ -1,0 +1,150 @@
+"""The scan-and-plan methods as stage plugins: settings models and the callables jobs use."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from weldcell.sdk.cloud import PointCloud, check_cloud
+from weldcell.sdk.settings import Settings
+from weldcell.sdk.units import Angle, Length
+from weldcell.sdk.weldpath import SeamPath, WeldPath
+
+
+class ReconstructSettings(Settings):
+    """Multi-view merge (eq. 1) + linear point-to-plane ICP (eqs. 2-8) against the growing model."""
+
+    voxel: Length | None = Field(0.0015, gt=0, description="voxel size of the merged model [m]")
+    register_to_model: bool = Field(True, description="register each view to the growing model (vs. no ICP)")
+    max_correspondence_distance: Length | None = Field(
+        0.005, gt=0, description="ICP correspondence distance d [m]; also the fitness distance of eq. 20"
+    )
+    max_iterations: int = Field(50, ge=1, description="ICP iterations per view")
+    tolerance: float = Field(1e-6, gt=0, description="ICP convergence tolerance")
+    robust: str | None = Field("huber", description="robust kernel: 'huber', 'tukey' or none")
+    max_correction: tuple[Length, Angle] = Field(
+        (0.05, 0.1745), description="largest ICP correction accepted over kinematics + hand-eye [m, rad]"
+    )
+
+
+class Reconstructor:
+    def __init__(self, s: ReconstructSettings) -> None:
+        self.s = s
+
+    def __call__(self, scans, T_flange_camera, progress=None):
+        from weldcell.plugins.scan_plan.reconstruct import reconstruct
+
+        robust = None if (self.s.robust or "").lower() in ("", "none") else self.s.robust
+        return reconstruct(
+            scans, T_flange_camera, voxel=self.s.voxel, register_to_model=self.s.register_to_model,
+            max_correspondence_distance=self.s.max_correspondence_distance, max_iterations=self.s.max_iterations,
+            tolerance=self.s.tolerance, robust=robust, max_correction=tuple(self.s.max_correction),
+            progress=progress,
+        )
+
+
+class BilateralSettings(Settings):
+    """Point-cloud bilateral filter (eqs. 9-10) and voxel down-sampling."""
+
+    radius: Length | None = Field(None, gt=0, description="neighbourhood radius [m]; default 3 x mean spacing")
+    sigma_c: Length | None = Field(None, gt=0, description="distance weight sigma_c [m]; default radius / 2")
+    sigma_s: Length | None = Field(None, gt=0, description="normal-distance weight sigma_s [m]; default: noise")
+    iterations: int = Field(1, ge=0, le=10, description="filter passes (0 = off)")
+    voxel_factor: float = Field(1.5, ge=0, description="down-sample to this multiple of the mean spacing (0 = off)")
+    crop_min: tuple[Length, Length, Length] | None = Field(None, description="keep points above this corner [m]")
+    crop_max: tuple[Length, Length, Length] | None = Field(None, description="keep points below this corner [m]")
+
+
+class BilateralDenoiser:
+    def __init__(self, s: BilateralSettings) -> None:
+        self.s = s
+
+    def __call__(self, cloud: PointCloud) -> PointCloud:
+        from weldcell.plugins.scan_plan.denoise import bilateral_filter, mean_spacing, voxel_downsample
+
+        check_cloud(cloud, "cloud to denoise", min_points=10)
+        P = cloud.points
+        keep = np.ones(len(P), dtype=bool)
+        if self.s.crop_min is not None:
+            keep &= np.all(P >= np.asarray(self.s.crop_min), axis=1)
+        if self.s.crop_max is not None:
+            keep &= np.all(P <= np.asarray(self.s.crop_max), axis=1)
+        P = P[keep]
+        check_cloud(PointCloud(P), "cloud inside the crop box", min_points=10)
+        if self.s.voxel_factor > 0:
+            P = voxel_downsample(P, factor=self.s.voxel_factor)
+        normals = None
+        if self.s.iterations > 0:
+            radius = self.s.radius or 3.0 * mean_spacing(P)
+            P, normals = bilateral_filter(P, radius, sigma_c=self.s.sigma_c, sigma_s=self.s.sigma_s,
+                                          iterations=self.s.iterations)
+        return PointCloud(P, normals=normals, frame=cloud.frame, meta=dict(cloud.meta))
+
+
+def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
+    """The cloud's normals flipped toward the nearest camera position in ``meta["viewpoints"]`` (else None:
+    the seam extractor then orients them itself)."""
+    views = cloud.meta.get("viewpoints")
+    if cloud.normals is None or views is None or len(views) == 0:
+        return None
+    V = np.asarray(views, dtype=float).reshape(-1, 3)
+    P, N = cloud.points, cloud.normals
+    nearest = V[np.argmin(((P[:, None, :] - V[None, :, :]) ** 2).sum(axis=2), axis=1)]
+    flip = np.sum((nearest - P) * N, axis=1) < 0
+    N = N.copy()
+    N[flip] *= -1
+    return N
+
+
+class EdgeSeamSettings(Settings):
+    """Edge-intensity seam extraction (eqs. 11-17) with joint classification and chaining."""
+
+    m: int = Field(12, ge=3, description="minimum neighbourhood size of eq. 11")
+    t: float = Field(40.0, ge=27.0, description="threshold on Tr(H)^3/Det(H) (eq. 16)")
+    radius: Length | None = Field(None, gt=0, description="radius r of eq. 11 [m]; default 3 x spacing")
+    sigma: Length | None = Field(None, gt=0, description="Gaussian of eq. 17 [m]; default as the paper")
+    min_intensity: float = Field(0.15, ge=0, description="minimum edge intensity (eq. 12) of an edge point")
+    joints: tuple[str, ...] = Field(("concave", "groove"), description="which edge classes become seams")
+    min_seam_length: Length = Field(0.02, gt=0, description="shorter seams are dropped [m]")
+    spacing: Length | None = Field(None, gt=0, description="seam resampling step [m]; default r")
+
+
+class EdgeSeamExtractor:
+    def __init__(self, s: EdgeSeamSettings) -> None:
+        self.s = s
+
+    def __call__(self, cloud: PointCloud):
+        from weldcell.plugins.scan_plan.seams import extract_seams
+
+        check_cloud(cloud, "cloud for seam extraction", min_points=self.s.m + 1)
+        normals = oriented_normals(cloud)
+        return extract_seams(cloud.points, normals, m=self.s.m, t=self.s.t, radius=self.s.radius,
+                             sigma=self.s.sigma, min_intensity=self.s.min_intensity, joints=tuple(self.s.joints),
+                             min_seam_length=self.s.min_seam_length, spacing=self.s.spacing)
+
+
+class TorchPathSettings(Settings):
+    """Torch frames (o, m, n) along the seam (eq. 18) and linear + slerp interpolation (eq. 19)."""
+
+    standoff: Length = Field(0.015, ge=0, description="contact-tip-to-work distance d [m]")
+    work_angle: Angle = Field(0.0, description="torch rotation about the travel axis [rad]")
+    travel_angle: Angle = Field(0.1745, description="push (+) or drag (-) angle about the torch y axis [rad]")
+    travel_average: int = Field(5, ge=1, description="moving vectors averaged for the travel direction (m)")
+    rho: int = Field(3, ge=0, description="poses interpolated between consecutive frames")
+
+
+class TorchPathPlanner:
+    def __init__(self, s: TorchPathSettings) -> None:
+        self.s = s
+
+    def __call__(self, seams, frame: str = "base") -> WeldPath:
+        from weldcell.plugins.scan_plan.torch_path import plan_torch_path
+
+        out = []
+        for seam in seams:
+            tp = plan_torch_path(seam, standoff=self.s.standoff, work_angle=self.s.work_angle,
+                                 travel_angle=self.s.travel_angle, travel_average=self.s.travel_average,
+                                 rho=self.s.rho)
+            out.append(SeamPath(id=f"s{seam.id}", joint=seam.joint_class, points=seam.points, poses=tp.poses,
+                                closed=seam.closed, extra={"approach": np.round(seam.normals, 6).tolist()}))
+        return WeldPath(out, frame=frame)

@@ -1,0 +1,124 @@
+"""Factories that build simulated devices from their settings and the run's device context."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from weldcell.hal.safety import SafetyGate
+from weldcell.hal.sim import devices as d
+from weldcell.hal.sim.hands import load_script
+from weldcell.hal.sim.kinematics import get_model
+from weldcell.hal.sim.world import SimWorld
+from weldcell.sdk.errors import DataError
+from weldcell.sdk.geometry import T_from_rotvec, T_from_rpy
+
+WORLD_KEY = "sim.world"
+
+
+def world(ctx) -> SimWorld:
+    """The run's simulated world (built once from the profile's [sim] section)."""
+    if WORLD_KEY not in ctx.shared:
+        ctx.shared[WORLD_KEY] = SimWorld.from_section(ctx.profile.profile.sim, seed=ctx.seed)
+    return ctx.shared[WORLD_KEY]
+
+
+def _parent(ctx) -> str:
+    return ctx.mount.parent
+
+
+def robot(settings, ctx) -> d.SimRobot:
+    model = get_model(settings.model)
+    w = world(ctx)
+    q_start = None
+    if settings.start_xyz is not None:
+        q_start = model.ik(T_from_rpy(settings.start_rpy, settings.start_xyz), model.home)
+    return d.SimRobot(model, w, T_world_base=w.T_world(ctx.mount.parent) @ ctx.T_parent_device, name=ctx.role,
+                      gate=SafetyGate(ctx.safety, model=model), motion=settings, dry_run=ctx.dry_run,
+                      q_start=q_start)
+
+
+def camera(settings, ctx) -> d.SimDepthCamera:
+    T_true = ctx.T_parent_device
+    if settings.mount_error > 0 or settings.mount_error_angle > 0:
+        rng = np.random.default_rng(ctx.seed + 17)
+        axis = rng.normal(size=3)
+        direction = rng.normal(size=3)
+        dT = T_from_rotvec(axis / np.linalg.norm(axis) * settings.mount_error_angle,
+                           direction / np.linalg.norm(direction) * settings.mount_error)
+        T_true = T_true @ dT
+    cam = d.SimDepthCamera(world(ctx), settings.preset, T_true, parent=ctx.mount.parent, name=ctx.role,
+                           noise=settings.noise, decimation=settings.decimation, seed=ctx.seed + 1)
+    if settings.stop_after is not None:
+        _stop_after(cam, settings.stop_after)
+    return cam
+
+
+def _stop_after(cam: d.SimDepthCamera, n: int) -> None:
+    original = cam._capture
+    count = {"n": 0}
+
+    def capture(timeout: float):
+        count["n"] += 1
+        if count["n"] > n:
+            cam.delivering = False
+        return original(timeout)
+
+    cam._capture = capture
+
+
+def gesture(settings, ctx) -> d.SimGestureSensor:
+    return d.SimGestureSensor(world(ctx), load_script(settings.script), rate=settings.rate, name=ctx.role,
+                              seed=ctx.seed + 2, disconnect_after=settings.disconnect_after)
+
+
+def displacement(settings, ctx) -> d.SimDisplacementSensor:
+    return d.SimDisplacementSensor(world(ctx), ctx.T_parent_device, parent=ctx.mount.parent, name=ctx.role,
+                                   min_range=settings.min_range, max_range=settings.max_range,
+                                   noise=settings.noise, seed=ctx.seed + 3)
+
+
+def projector(settings, ctx) -> d.SimProjector:
+    return d.SimProjector(name=ctx.role)
+
+
+def imu(settings, ctx) -> d.SimImu:
+    return d.SimImu(world(ctx), parent=ctx.mount.parent, T_parent_imu=ctx.T_parent_device, name=ctx.role,
+                    accel_noise=settings.accel_noise, gyro_noise=settings.gyro_noise, seed=ctx.seed + 4)
+
+
+def gnss(settings, ctx) -> d.SimGnss:
+    return d.SimGnss(world(ctx), parent=ctx.mount.parent, name=ctx.role,
+                     origin=(settings.latitude, settings.longitude, settings.altitude), sigma=settings.sigma,
+                     seed=ctx.seed + 5)
+
+
+def probe(settings) -> str:
+    return "simulated (always reachable)"
+
+
+def check_sim_section(loaded) -> list[tuple[tuple[str, ...], str]]:
+    """Workpiece kinds and parameter names of the [sim] section (cheap: nothing is built)."""
+    from weldcell.hal.sim.workpieces import workpiece_parameters
+
+    problems = []
+    uses_sim = any(e.plugin.endswith(".sim") for e in loaded.profile.devices.values())
+    for i, w in enumerate(loaded.profile.sim.workpieces):
+        key = ("sim", "workpieces", str(i))
+        try:
+            valid = workpiece_parameters(w.kind)
+        except DataError as e:
+            problems.append(((*key, "kind"), f"{e.message}; {e.fix}"))
+            continue
+        for name in w.params:
+            if name not in valid:
+                problems.append(((*key, "params", name), f"'{w.kind}' has no parameter '{name}'; its parameters "
+                                                         f"are: {', '.join(valid)}"))
+    if uses_sim and not loaded.profile.sim.workpieces and loaded.profile.job.name in ("scan-and-plan",):
+        problems.append((("sim", "workpieces"), "the simulated cell has no workpiece to scan; add [[sim.workpieces]]"))
+    gesture = loaded.profile.devices.get("gesture")
+    if gesture is not None and gesture.plugin == "gesture.sim":
+        try:
+            load_script(gesture.settings.get("script", "survey"))
+        except DataError as e:
+            problems.append((("devices", "gesture", "settings", "script"), f"{e.message}; {e.fix}"))
+    return problems

@@ -1,0 +1,588 @@
+"""Deformation servo and online torch-trajectory generation (paper 003 §2.2.2, eqs. 14-18, Algorithm 2).
+
+Geometry (Fig. 8), in the working plane orthogonal to the base z axis:
+
+* ``P_r`` robot end effector = the TCP, placed at the SRM tip's *undeformed* centre;
+* ``t_d = [cos α, sin α]``, ``n_d = [-sin α, cos α]`` the tool's direction (α about base +z);
+* the torch trails the tip: ``P_t = P_r - ‖d‖ t_d`` (eq. 14);
+* the actual tip ``P_s = P_r - δ`` (eq. 15), δ the SRM deformation sensed through the ArUco tag;
+* SERVO: ``V_r = V_const t_v - k_p (δ^{n_s} - δ_d) n_v`` (eq. 16, Alg. 2 line 24), t_v, n_v the planned
+  path's tangent and (into-the-wall) normal at the point nearest to P_r;
+* REFINE: the tip positions ``P_s`` form the refined path the torch follows (Alg. 2 lines 16-20);
+* the torch's velocity ``V_t = V_r - ω ‖d‖ n_d`` (eq. 17) must have no component along the refined
+  path's normal ``n_t`` at the torch (eq. 18), which gives ω (Alg. 2 line 13).
+
+Where this module differs from the paper (details in docs/methods/tactile-tracking.md):
+
+* Sign of ω: with eq. 14 and α counter-clockwise, dP_t/dt = V_r − ω‖d‖n_d; the paper's eq. 17 writes
+  "+", i.e. measures ω clockwise. We use the right-handed ω of the twist, so line 13's leading minus
+  drops; line 13's ``V_r^{n_d}·t_t`` is read as ``V_r^{n_d}·n_t`` (eq. 18).
+* Torch position feedback: eq. 18 only keeps the torch *velocity* tangent; we add ``-k_t e_t`` (e_t the
+  torch's lateral distance to the refined path) so an initial offset decays (``torch_gain = 0`` = paper).
+* Singularity n_d ⟂ n_t (§5.2): ω uses damped least squares with a damping that is zero outside
+  ``|n_d·n_t| < singular_cos`` (so ω is exact there) and bounds ω inside; in that zone the travel speed
+  is scaled down and the heading is steered back towards the path tangent, which leaves the
+  singular set; |ω| is saturated at ``omega_max``.
+* End of seam (§3.3, §5.2): instead of resetting δ_d to 0 (the jitter of Fig. 13), contact has hysteresis
+  and debouncing; on loss of contact the tool holds the last refined tangent, commands no normal motion
+  and decelerates to rest along a quintic (jerk-bounded) profile. ``end_mode="paper"`` reproduces the
+  paper's behaviour for comparison.
+* The planned and refined paths are projected onto segments (not nearest vertices) within a window
+  around the last foot point, so a path that comes back near itself cannot make the servo jump.
+* Every command is data (:class:`ServoCommand`), optionally passed through ``gate(twist, T)``; a
+  :class:`~weldcell.sdk.errors.SafetyError` from the gate stops the servo with a zero twist.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+from weldcell.sdk.errors import DataError, SafetyError, UsageError
+from weldcell.sdk.settings import Settings
+from weldcell.sdk.units import AngularSpeed, Duration, Length, Speed
+
+from .paths import Polyline, left_normal
+
+Gate = Callable[[np.ndarray, np.ndarray], None]
+
+
+class ServoSettings(Settings):
+    """Settings of the tactile seam-tracking servo (SI; profiles may write ``"5 mm/s"``)."""
+
+    speed: Speed = Field(0.005, gt=0, description="V_const, travel speed along the planned tangent (eq. 16)")
+    k_p: float = Field(4.0, gt=0, description="deformation servo gain k_p (1/s), eq. 16")
+    delta_d: Length = Field(0.001, gt=0, description="desired normal deformation δ_d (into the wall)")
+    torch_offset: Length = Field(0.04, gt=0, description="‖d‖, tip-to-torch distance in the plane (eq. 14)")
+    wall_side: Literal["left", "right"] = Field("left", description="side of travel where the wall is")
+    tip_radius: Length = Field(
+        0.002, ge=0, description="SRM tip radius, to offset the refined path onto the seam"
+    )
+    contact_on: Length = Field(0.0004, gt=0, description="δ^n above which contact is declared")
+    contact_off: Length = Field(0.00015, ge=0, description="δ^n below which contact counts as lost")
+    contact_debounce: int = Field(3, ge=1, description="consecutive frames below contact_off to declare loss")
+    approach_speed_scale: float = Field(
+        0.3, ge=0, le=1, description="travel speed fraction before first contact"
+    )
+    max_normal_speed: Speed = Field(0.006, gt=0, description="clamp of the servo's normal velocity")
+    max_accel: float = Field(0.1, gt=0, description="linear acceleration limit of commands (m/s²)")
+    stop_time: Duration = Field(0.5, gt=0, description="duration of the smooth stop on loss of contact")
+    end_mode: Literal["hold-and-stop", "paper"] = Field("hold-and-stop", description="end-of-seam behaviour")
+    plan_overrun: Length = Field(
+        0.005, ge=0, description="distance allowed past the planned end while in contact"
+    )
+    torch_gain: float = Field(2.0, ge=0, description="k_t (1/s): torch lateral error feedback (0 = paper)")
+    singular_cos: float = Field(
+        0.35, gt=0, lt=1, description="|n_d·n_t| below which the singular handling acts"
+    )
+    damping: float = Field(0.3, gt=0, description="DLS damping at the singularity, as a fraction of ‖d‖")
+    align_gain: float = Field(1.5, ge=0, description="heading re-alignment gain (1/s) in the singular zone")
+    omega_max: AngularSpeed = Field(0.6, gt=0, description="|ω| limit")
+    max_lost_frames: int = Field(5, ge=0, description="marker-lost frames tolerated before stopping")
+    max_deflection: Length = Field(0.005, gt=0, description="|δ| beyond which the servo stops (overload)")
+    z_gain: float = Field(2.0, ge=0, description="gain (1/s) holding the TCP at the planned height")
+    window: Length = Field(0.02, gt=0, description="search window (±) for the nearest planned/refined point")
+    refine_step: Length = Field(0.0003, gt=0, description="minimum spacing of recorded refined points")
+    tangent_window: Length = Field(0.003, gt=0, description="half window of the refined-path tangent fit")
+
+
+# ---------------------------------------------------------------------------------------------- #
+# The paper's functions, one by one
+# ---------------------------------------------------------------------------------------------- #
+
+
+def tool_directions(alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """``t_d = [cos α, sin α]``, ``n_d = [-sin α, cos α]`` (§2.2.2)."""
+    c, s = math.cos(alpha), math.sin(alpha)
+    return np.array([c, s]), np.array([-s, c])
+
+
+def torch_position(P_r: np.ndarray, t_d: np.ndarray, torch_offset: float) -> np.ndarray:
+    """Eq. 14 / Alg. 2 line 9: ``P_t = P_r - ‖d‖ t_d``."""
+    return np.asarray(P_r, dtype=float)[:2] - torch_offset * np.asarray(t_d, dtype=float)
+
+
+def refine_point(P_r: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """REFINE (Alg. 2 line 17, eq. 15): ``P_s = P_r - δ``, δ = δ^{n_s} n_s + δ^{t_s} t_s (plane vector)."""
+    return np.asarray(P_r, dtype=float)[:2] - np.asarray(delta, dtype=float)[:2]
+
+
+def split_deformation(delta: np.ndarray, t_s: np.ndarray, n_s: np.ndarray) -> tuple[float, float]:
+    """δ^{n_s}, δ^{t_s}: projections of the plane deformation on the seam normal and tangent (eq. 15)."""
+    d = np.asarray(delta, dtype=float)[:2]
+    return float(d @ n_s), float(d @ t_s)
+
+
+def servo_velocity(
+    t_v: np.ndarray,
+    n_v: np.ndarray,
+    delta_n: float,
+    delta_d: float,
+    speed: float,
+    k_p: float,
+    max_normal_speed: float = math.inf,
+) -> np.ndarray:
+    """SERVO (eq. 16, Alg. 2 line 24): ``V_r = V_const t_v - k_p (δ^{n_s} - δ_d) n_v`` (normal clamped)."""
+    vn = float(np.clip(-k_p * (delta_n - delta_d), -max_normal_speed, max_normal_speed))
+    return speed * np.asarray(t_v, dtype=float) + vn * np.asarray(n_v, dtype=float)
+
+
+@dataclass(frozen=True)
+class OmegaSolution:
+    """ω from eqs. 17-18 and how close to the n_d ⟂ n_t singularity it was computed."""
+
+    omega: float
+    cos_nd_nt: float  # n_d · n_t
+    weight: float  # 1 = regular, 0 = at the singularity
+    exact: float  # the undamped value (may be ±inf at the singularity)
+
+
+def torch_angular_velocity(
+    V_r: np.ndarray,
+    t_d: np.ndarray,
+    n_d: np.ndarray,
+    n_t: np.ndarray,
+    torch_offset: float,
+    lateral_error: float = 0.0,
+    torch_gain: float = 0.0,
+    singular_cos: float = 0.35,
+    damping: float = 0.3,
+    heading_error: float = 0.0,
+    align_gain: float = 0.0,
+    omega_max: float = math.inf,
+) -> OmegaSolution:
+    """ω of the end effector so the torch moves along the refined path (eqs. 17-18, Alg. 2 line 13).
+
+    Regular case: ``V_t·n_t = -k_t e_t`` with ``V_t = V_r - ω‖d‖n_d`` gives
+    ``ω = (V_r·n_t + k_t e_t) / (‖d‖ n_d·n_t)`` (k_t = 0: the paper's eq. 18).
+    Near ``n_d ⟂ n_t`` (|n_d·n_t| < singular_cos) the division is damped — ``ω = a b / (a² + λ²)`` with
+    ``a = ‖d‖ n_d·n_t``, ``λ² = (damping ‖d‖)² (1 - (c/singular_cos)²)`` — and blended with a heading
+    re-alignment ``align_gain · heading_error`` (the angle from t_d to the path tangent t_t, turning
+    which raises |n_d·n_t|) by the weight ``|c|/singular_cos``. The result is finite for every input
+    and saturated at ``omega_max``.
+    """
+    n_t = np.asarray(n_t, dtype=float)
+    c = float(np.asarray(n_d, dtype=float) @ n_t)
+    a = torch_offset * c
+    b = float(np.asarray(V_r, dtype=float)[:2] @ n_t) + torch_gain * lateral_error
+    exact = b / a if a != 0.0 else (math.copysign(math.inf, b) if b != 0 else 0.0)
+    if abs(c) >= singular_cos:
+        w, omega = 1.0, exact
+    else:
+        lam2 = (damping * torch_offset) ** 2 * (1.0 - (c / singular_cos) ** 2)
+        w = abs(c) / singular_cos
+        omega = w * (a * b / (a * a + lam2)) + (1.0 - w) * align_gain * heading_error
+    omega = float(np.clip(omega, -omega_max, omega_max))
+    return OmegaSolution(omega, c, w, exact)
+
+
+def quintic_ramp_down(tau: float) -> float:
+    """1 → 0 over tau ∈ [0, 1] with zero 1st and 2nd derivatives at both ends (bounded jerk)."""
+    x = min(max(tau, 0.0), 1.0)
+    return 1.0 - x**3 * (10.0 - 15.0 * x + 6.0 * x * x)
+
+
+# ---------------------------------------------------------------------------------------------- #
+# The refined path (REFINE's output)
+# ---------------------------------------------------------------------------------------------- #
+
+
+class RefinedPath:
+    """Growing list of recorded tip positions ``P_s`` (base frame, 3-D) with their times."""
+
+    def __init__(self, min_step: float) -> None:
+        self.min_step = min_step
+        self._pts: list[np.ndarray] = []
+        self._t: list[float] = []
+        self._line: Polyline | None = None
+
+    def append(self, p: np.ndarray, t: float) -> bool:
+        p = np.asarray(p, dtype=float)
+        if self._pts and np.linalg.norm(p[:2] - self._pts[-1][:2]) < self.min_step:
+            return False
+        self._pts.append(p.copy())
+        self._t.append(float(t))
+        self._line = None
+        return True
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.array(self._pts).reshape(-1, 3)
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.array(self._t)
+
+    def __len__(self) -> int:
+        return len(self._pts)
+
+    def polyline(self) -> Polyline | None:
+        if self._line is None and len(self._pts) >= 2:
+            self._line = Polyline(self.points, "refined path")
+        return self._line
+
+    @property
+    def length(self) -> float:
+        line = self.polyline()
+        return 0.0 if line is None else line.length
+
+
+def seam_from_tip_path(
+    tip_points: np.ndarray, tip_radius: float, wall_side: str, half_window: float = 0.003
+) -> np.ndarray:
+    """Seam (wall-contact) points: tip centres moved by the tip radius into the wall along the path normal."""
+    P = np.asarray(tip_points, dtype=float)
+    if len(P) < 2 or tip_radius == 0:
+        return P.copy()
+    line = Polyline(P, "refined path")
+    sign = 1.0 if wall_side == "left" else -1.0
+    out = P.copy()
+    s_vertices = line.s
+    for i, s in enumerate(s_vertices):
+        n = sign * left_normal(line.smooth_tangent(float(s), half_window))
+        out[i, :2] += tip_radius * n
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- #
+# The online loop (Algorithm 2 lines 2-15) as a stateful, data-only controller
+# ---------------------------------------------------------------------------------------------- #
+
+State = Literal["approach", "tracking", "stopping", "stopped", "fault"]
+
+
+@dataclass(frozen=True)
+class ServoCommand:
+    """One control period's output. ``twist`` = [vx, vy, vz, wx, wy, wz] of the TCP in the base frame."""
+
+    t: float
+    twist: np.ndarray
+    state: State
+    reason: str
+    in_contact: bool
+    delta_n: float
+    delta_t: float
+    delta_d: float
+    P_r: np.ndarray
+    P_s: np.ndarray | None
+    P_t: np.ndarray
+    s_plan: float
+    omega: float
+    singular_weight: float
+    torch_error: float
+
+    @property
+    def done(self) -> bool:
+        return self.state in ("stopped", "fault")
+
+
+@dataclass
+class _Memory:
+    state: State = "approach"
+    reason: str = ""
+    s_plan: float | None = None
+    s_torch: float | None = None
+    below: int = 0
+    lost: int = 0
+    last_delta: np.ndarray | None = None
+    contact: bool = False
+    ever_contact: bool = False
+    v_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t_prev: float | None = None
+    stop_t0: float = 0.0
+    stop_v0: float = 0.0
+    stop_omega0: float = 0.0
+    stop_dir: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+class TactileSeamServo:
+    """Algorithm 2 as a controller: call :meth:`step` once per camera frame.
+
+    ``planned_points`` (N, 2|3) is the path from 3-D vision (base frame), ordered along travel.
+    ``gate(twist, T_base_tool)`` may raise :class:`SafetyError`; the servo then stops (zero twist,
+    state ``"fault"``) and never sends another motion.
+    """
+
+    def __init__(
+        self, planned_points: np.ndarray, settings: ServoSettings | None = None, gate: Gate | None = None
+    ) -> None:
+        self.settings = settings or ServoSettings()
+        if self.settings.contact_off >= self.settings.contact_on:
+            raise UsageError(
+                "servo: contact_off must be below contact_on (hysteresis)",
+                "e.g. contact_on = 0.4 mm, contact_off = 0.15 mm",
+            )
+        if self.settings.contact_on >= self.settings.delta_d:
+            raise UsageError(
+                "servo: contact_on must be below the desired deformation delta_d",
+                "lower contact_on or raise delta_d",
+            )
+        P = np.asarray(planned_points, dtype=float)
+        if P.ndim == 2 and P.shape[1] == 2:
+            P = np.column_stack([P, np.zeros(len(P))])
+        self.plan = Polyline(P, "planned path")
+        self.gate = gate
+        self.refined = RefinedPath(self.settings.refine_step)
+        self._m = _Memory()
+        self._sigma = 1.0 if self.settings.wall_side == "left" else -1.0
+
+    @property
+    def state(self) -> State:
+        return self._m.state
+
+    def _plan_frame(self, P_r: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, bool]:
+        m, S = self._m, self.settings
+        pr = self.plan.project(P_r, m.s_plan, S.window if m.s_plan is not None else None)
+        m.s_plan = pr.s
+        t_v = self.plan.smooth_tangent(pr.s, S.tangent_window)
+        return pr.s, pr.point, t_v, self._sigma * left_normal(t_v), pr.past_end
+
+    def _torch_frame(self, P_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Tangent, normal, signed lateral error of the torch w.r.t. the refined path (plan as fallback)."""
+        S, m = self.settings, self._m
+        line = self.refined.polyline()
+        use_refined = line is not None and line.length >= min(S.torch_offset, 0.01)
+        if use_refined:
+            pr = line.project(P_t, m.s_torch, S.window + S.torch_offset if m.s_torch is not None else None)
+            m.s_torch = pr.s
+            # before the refined path's start: extrapolate its initial direction (fitted over ≤ 10 mm)
+            hw = min(line.length, 0.01) if pr.before_start else S.tangent_window
+            t_t = line.smooth_tangent(pr.s, hw)
+            if pr.before_start:
+                pr = replace(pr, point=line.points[0])
+        else:
+            pr = self.plan.project(P_t)
+            t_t = self.plan.smooth_tangent(pr.s, S.tangent_window)
+        n_t = left_normal(t_t)
+        e = float((np.asarray(P_t)[:2] - pr.point[:2]) @ n_t)
+        return t_t, n_t, e
+
+    def _begin_stop(self, t: float, reason: str, direction: np.ndarray, omega: float) -> None:
+        m = self._m
+        m.state, m.reason = "stopping", reason
+        m.stop_t0 = t
+        n = np.linalg.norm(direction)
+        m.stop_dir = direction / n if n > 1e-9 else np.zeros(2)
+        m.stop_v0 = max(0.0, float(m.v_prev[:2] @ m.stop_dir))  # keep only the travel along the held tangent
+        m.stop_omega0 = omega
+
+    def stop(self, t: float, reason: str = "requested") -> None:
+        """Ask for a smooth stop (e.g. operator request)."""
+        if self._m.state in ("approach", "tracking"):
+            self._begin_stop(t, reason, self._m.v_prev[:2], 0.0)
+
+    def step(self, t: float, T_base_tool: np.ndarray, delta_tool: np.ndarray | None) -> ServoCommand:
+        """One period: ``delta_tool`` = δ = P_r − P_s in the tool frame (3,), None if the marker is lost."""
+        S, m = self.settings, self._m
+        T = np.asarray(T_base_tool, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise DataError("servo: robot pose must be a finite 4x4 transform", "pass the measured TCP pose")
+        dt = 0.0 if m.t_prev is None else max(0.0, t - m.t_prev)
+        m.t_prev = t
+        # lines 3-5: tool direction and end-effector position
+        x_axis = T[:2, 0]
+        if np.linalg.norm(x_axis) < 1e-6:
+            raise DataError(
+                "servo: tool x axis is vertical; the planar method needs a horizontal travel axis",
+                "orient the tool with its x (travel) axis in the working plane",
+            )
+        t_d = x_axis / np.linalg.norm(x_axis)
+        n_d = left_normal(t_d)
+        P_r = T[:3, 3].copy()
+        P_t2 = torch_position(P_r, t_d, S.torch_offset)
+        P_t = np.array([P_t2[0], P_t2[1], P_r[2]])
+        # line 6: deformation (hold the last one through short marker losses)
+        lost = delta_tool is None
+        if lost:
+            m.lost += 1
+            delta_tool = m.last_delta if m.last_delta is not None else None
+        else:
+            m.lost = 0
+            delta_tool = np.asarray(delta_tool, dtype=float)
+            if delta_tool.shape != (3,) or not np.all(np.isfinite(delta_tool)):
+                raise DataError(
+                    "servo: deformation must be a finite 3-vector (tool frame)",
+                    "pass P_r - P_s in the tool frame, or None when the marker is lost",
+                )
+            m.last_delta = delta_tool
+        delta_base = (T[:3, :3] @ delta_tool) if delta_tool is not None else np.zeros(3)
+        # line 22-23: nearest planned point
+        s_plan, P_v, t_v, n_v, past_end = self._plan_frame(P_r)
+        delta_n, delta_t = split_deformation(delta_base, t_v, n_v)
+        # contact with hysteresis (paper mode: a plain threshold, no hysteresis)
+        if S.end_mode == "paper":
+            m.contact = delta_tool is not None and delta_n > S.contact_on
+        elif delta_tool is not None:
+            if delta_n > S.contact_on:
+                m.contact, m.below = True, 0
+            elif delta_n < S.contact_off:
+                m.below += 1
+                if m.below >= S.contact_debounce:
+                    m.contact = False
+        m.ever_contact = m.ever_contact or m.contact
+        if m.state == "approach" and m.contact:
+            m.state = "tracking"
+        # lines 7, 16-20: REFINE (only from real, in-contact measurements)
+        P_s = None
+        if m.contact and not lost and m.state in ("approach", "tracking"):
+            P_s2 = refine_point(P_r, delta_base)
+            P_s = np.array([P_s2[0], P_s2[1], P_r[2] - delta_base[2]])
+            self.refined.append(P_s, t)
+        # state transitions of the safe end-of-seam logic
+        if m.state in ("approach", "tracking") and S.end_mode == "hold-and-stop":
+            if lost and m.lost > S.max_lost_frames:
+                self._begin_stop(t, "marker lost", m.v_prev[:2], 0.0)
+            elif delta_tool is not None and float(np.linalg.norm(delta_tool)) > S.max_deflection:
+                self._begin_stop(t, "overload", m.v_prev[:2], 0.0)
+            elif m.state == "tracking" and not m.contact:
+                self._begin_stop(t, "contact lost", self._hold_direction(t_v), 0.0)
+            elif (
+                past_end
+                and (m.state == "approach" or s_plan >= self.plan.length - 1e-9)
+                and (float((P_r[:2] - self.plan.xy[-1]) @ self.plan.vertex_tangent[-1]) >= S.plan_overrun)
+            ):
+                self._begin_stop(t, "end of planned path", self._hold_direction(t_v), 0.0)
+        elif m.state in ("approach", "tracking") and S.end_mode == "paper":
+            if lost and m.lost > S.max_lost_frames:
+                m.state, m.reason = "stopped", "marker lost"
+            elif past_end:
+                m.state, m.reason = "stopped", "end of planned path"
+        # line 8 / 21-26: SERVO
+        delta_d = S.delta_d
+        if m.state in ("approach", "tracking"):
+            if S.end_mode == "paper" and m.ever_contact and not m.contact:
+                delta_d = 0.0  # §3.3: δ_d reset to zero when the SRM loses contact
+            speed = S.speed * (S.approach_speed_scale if m.state == "approach" else 1.0)
+            if delta_tool is None:
+                V2 = speed * t_v
+            else:
+                V2 = servo_velocity(t_v, n_v, delta_n, delta_d, speed, S.k_p, S.max_normal_speed)
+                if S.end_mode != "paper" and m.state == "tracking" and delta_n < S.contact_on:
+                    # contact fading (the wall recedes, e.g. the tip rolls round the seam's end): fade the
+                    # wall-seeking normal velocity out between contact_on and contact_off instead of
+                    # accelerating towards a wall that is no longer there
+                    fade = float(
+                        np.clip((delta_n - S.contact_off) / (S.contact_on - S.contact_off), 0.0, 1.0)
+                    )
+                    vn = float(V2 @ n_v)
+                    vn_band = min(vn, S.k_p * (S.delta_d - S.contact_on)) * fade
+                    V2 = V2 + (vn_band - vn) * n_v
+        elif m.state == "stopping":
+            scale = quintic_ramp_down((t - m.stop_t0) / S.stop_time)
+            V2 = m.stop_v0 * scale * m.stop_dir
+            if scale <= 0.0:
+                m.state = "stopped"
+        else:
+            V2 = np.zeros(2)
+        # lines 9-13: torch frame and ω
+        t_t, n_t, e_t = self._torch_frame(P_t)
+        heading_error = math.atan2(t_d[0] * t_t[1] - t_d[1] * t_t[0], float(t_d @ t_t))
+        sol = torch_angular_velocity(
+            V2,
+            t_d,
+            n_d,
+            n_t,
+            S.torch_offset,
+            e_t,
+            S.torch_gain,
+            S.singular_cos,
+            S.damping,
+            heading_error,
+            S.align_gain,
+            S.omega_max,
+        )
+        omega = sol.omega
+        if m.state in ("approach", "tracking") and sol.weight < 1.0:
+            # slow the travel in the singular zone, keep the deformation servo's normal part
+            along = float(V2 @ t_v)
+            V2 = V2 + (sol.weight - 1.0) * along * t_v
+            sol = torch_angular_velocity(
+                V2,
+                t_d,
+                n_d,
+                n_t,
+                S.torch_offset,
+                e_t,
+                S.torch_gain,
+                S.singular_cos,
+                S.damping,
+                heading_error,
+                S.align_gain,
+                S.omega_max,
+            )
+            omega = sol.omega
+        if m.state == "stopping":
+            omega *= quintic_ramp_down((t - m.stop_t0) / S.stop_time)
+        if m.state in ("stopped", "fault"):
+            omega = 0.0
+        vz = S.z_gain * (P_v[2] - P_r[2]) if m.state in ("approach", "tracking") else 0.0
+        V = np.array([V2[0], V2[1], vz])
+        if m.state in ("approach", "tracking") and dt > 0:  # acceleration limit
+            dv = V - m.v_prev
+            lim = S.max_accel * dt
+            nd = float(np.linalg.norm(dv))
+            if nd > lim:
+                V = m.v_prev + dv * (lim / nd)
+        twist = np.array([V[0], V[1], V[2], 0.0, 0.0, omega])
+        # line 14: apply, through the safety gate
+        if m.state == "fault":
+            twist = np.zeros(6)
+        elif self.gate is not None and np.any(twist != 0.0):
+            try:
+                self.gate(twist.copy(), T.copy())
+            except SafetyError as exc:
+                m.state, m.reason = "fault", f"safety: {exc.message}"
+                twist = np.zeros(6)
+        m.v_prev = twist[:3].copy()
+        return ServoCommand(
+            t,
+            twist,
+            m.state,
+            m.reason,
+            m.contact,
+            delta_n,
+            delta_t,
+            delta_d,
+            P_r,
+            P_s,
+            P_t,
+            s_plan,
+            float(twist[5]),
+            sol.weight,
+            e_t,
+        )
+
+    def _hold_direction(self, t_v: np.ndarray) -> np.ndarray:
+        """Direction to coast in while stopping: the refined path's last tangent, else the plan's."""
+        S = self.settings
+        line = self.refined.polyline()
+        # skip the last tip radius: there the tip may already be rolling round the end of the wall
+        s_hold = (line.length - S.tip_radius - S.tangent_window) if line is not None else -1.0
+        if line is not None and s_hold > S.tangent_window:
+            return line.smooth_tangent(s_hold, S.tangent_window)
+        return np.asarray(t_v, dtype=float)
+
+
+def box_gate(lo: np.ndarray, hi: np.ndarray, horizon: float = 0.1, max_speed: float = 0.05) -> Gate:
+    """Workspace gate: refuses a too fast twist, or one taking the TCP out of the box within ``horizon``."""
+    lo_a, hi_a = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+
+    def gate(twist: np.ndarray, T: np.ndarray) -> None:
+        v = np.asarray(twist, dtype=float)[:3]
+        if float(np.linalg.norm(v)) > max_speed:
+            raise SafetyError(
+                f"speed {np.linalg.norm(v) * 1e3:.1f} mm/s above the limit {max_speed * 1e3:.1f} mm/s",
+                "lower the servo speed or raise the cell's speed limit",
+            )
+        p = np.asarray(T, dtype=float)[:3, 3] + horizon * v
+        if np.any(p < lo_a) or np.any(p > hi_a):
+            raise SafetyError(
+                f"TCP would leave the workspace box at {np.round(p * 1e3, 1).tolist()} mm",
+                "check the planned path against the cell's workspace limits",
+            )
+
+    return gate

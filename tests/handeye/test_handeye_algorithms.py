@@ -1,0 +1,196 @@
+"""Flange hand-eye: point fits (eqs. 9-12), circle RANSAC, segmentation, Algorithm 1, configurations."""
+
+import numpy as np
+import pytest
+from weldcell.plugins.handeye.calibrate import calibrate
+from weldcell.plugins.handeye.circle import ransac_circle
+from weldcell.plugins.handeye.flange_model import iso9409_model
+from weldcell.plugins.handeye.iterative import iterative_pool
+from weldcell.plugins.handeye.pointfit import robust_point_fit, scaled_svd_fit
+from weldcell.plugins.handeye.result import HandEyeSample
+from weldcell.plugins.handeye.segmentation import segment_flange
+from weldcell.plugins.handeye.simulation import PAPER_T_BASE_CAMERA, render_flange_scan, simulate_cell
+from weldcell.plugins.handeye.verification import GroundTruthVerifier, IcpVerifier, compensate
+from weldcell.sdk.geometry import T_from_rpy, invert, pose_error, transform_points
+
+
+def _assert_T(T, T_true, t_tol=1e-9, r_tol=1e-9):
+    dt, dr = pose_error(T, T_true)
+    assert dt < t_tol and dr < r_tol, (dt, dr)
+
+
+def test_scaled_svd_recovers_scale_and_guards_reflection():
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-0.2, 0.2, (20, 3))
+    T = T_from_rpy([0.4, -0.3, 2.0], [0.6, -0.1, 1.0])
+    dst = 2.5 * src @ T[:3, :3].T + T[:3, 3]
+    fit = scaled_svd_fit(src, dst, with_scale=True)
+    assert fit.scale == pytest.approx(2.5, rel=1e-12)
+    assert np.allclose(fit.T[:3, :3], 2.5 * T[:3, :3]) and np.allclose(fit.T[:3, 3], T[:3, 3])
+    assert fit.residuals.max() < 1e-12
+    # mirrored data: the best orthogonal map is a reflection; eq. 12 must return a proper rotation
+    mirrored = dst * np.array([1, 1, -1])
+    fit = scaled_svd_fit(src, mirrored)
+    assert fit.reflection_guarded
+    assert np.linalg.det(fit.T[:3, :3]) == pytest.approx(1.0)
+    # coplanar points (det Σ = 0): still a proper rotation and exact recovery
+    flat = src.copy()
+    flat[:, 2] = 0
+    fit = scaled_svd_fit(flat, transform_points(T, flat))
+    _assert_T(fit.T, T, 1e-12, 1e-9)
+
+
+def test_robust_fit_rejects_gross_outliers():
+    rng = np.random.default_rng(0)
+    src = rng.uniform(-0.15, 0.15, (40, 3))
+    T = T_from_rpy([3.14, 0, -1.57], [0.6, -0.0125, 1.0])
+    dst = transform_points(T, src) + rng.normal(0, 0.0002, src.shape)
+    bad = [3, 17, 30]
+    dst[bad] += np.array([0.035, -0.02, 0.01])
+    rf = robust_point_fit(src, dst)
+    assert sorted(np.flatnonzero(~rf.inliers)) == bad
+    assert pose_error(rf.T, T)[0] < 0.0003
+    assert pose_error(scaled_svd_fit(src, dst).T, T)[0] > 0.002  # all-data LS is pulled away
+
+
+def test_ransac_circle_finds_centre_with_outliers():
+    model = iso9409_model(50.0, spacing=0.0004)
+    face = model[model[:, 2] == 0]
+    T_cf = T_from_rpy([2.9, 0.2, 0.5], [0.05, -0.1, 0.7])
+    rng = np.random.default_rng(1)
+    scan = transform_points(T_cf, face) + rng.normal(0, 0.00005, face.shape)
+    outl = T_cf[:3, 3] + rng.uniform(-0.04, 0.04, (300, 3)) * [1, 1, 0.05]
+    fit = ransac_circle(np.vstack([scan, outl]), radius=0.0315)
+    assert np.linalg.norm(fit.center - T_cf[:3, 3]) < 1e-4  # within 0.1 mm
+    assert fit.radius == pytest.approx(0.0315, abs=3e-4)
+    assert abs(abs(fit.normal @ T_cf[:3, 2]) - 1) < 1e-4
+
+
+def test_segmentation_isolates_flange_from_clutter():
+    model = iso9409_model(50.0, spacing=0.0005)
+    T_cf = T_from_rpy([np.pi, 0.15, 0.3], [0.02, -0.05, 0.65])
+    raw = render_flange_scan(T_cf, model, sigma=0.0001, n_outliers=200, clutter=True, rng=2)
+    seg = segment_flange(raw)
+    fit = ransac_circle(seg.face, radius=0.0315)
+    assert np.linalg.norm(fit.center - T_cf[:3, 3]) < 2e-4
+    assert seg.report["extent_mm"] == pytest.approx(63, abs=3)
+
+
+def _sim_samples(config, rng=0, n=20):
+    cell = simulate_cell(n_poses=n, rng=rng)
+    G = cell.T_base_flange
+    return cell, G
+
+
+def test_exact_recovery_eye_on_base():
+    cell, G = _sim_samples("eye-on-base")
+    smp = [HandEyeSample(T_base_flange=g, p_cam=p) for g, p in zip(G, cell.p_cam_true, strict=True)]
+    for method in ("flange", "flange-svd", "flange-iterative"):
+        r = calibrate(smp, "eye-on-base", method=method, bootstrap=0)
+        assert r.name == "T_base_camera"
+        _assert_T(r.T, PAPER_T_BASE_CAMERA, 1e-9, 1e-6)
+
+
+def test_exact_recovery_eye_in_hand_known_and_estimated_feature():
+    rng = np.random.default_rng(5)
+    X = T_from_rpy([0.1, -0.2, 0.3], [0.03, 0.05, 0.08])  # T_flange_camera
+    g = np.array([0.4, 0.1, 0.02])  # a feature fixed in the base
+    G = np.array(
+        [
+            T_from_rpy(
+                rng.uniform(-0.5, 0.5, 3) + [np.pi, 0, 0], rng.uniform(-0.15, 0.15, 3) + [0.4, 0.1, 0.5]
+            )
+            for _ in range(15)
+        ]
+    )
+    c = np.array([transform_points(invert(Gi @ X), g)[0] for Gi in G])
+    smp = [HandEyeSample(T_base_flange=Gi, p_cam=ci) for Gi, ci in zip(G, c, strict=True)]
+    r = calibrate(smp, "eye-in-hand", feature_base=g.tolist(), bootstrap=0)
+    assert r.name == "T_flange_camera"
+    _assert_T(r.T, X, 1e-9, 1e-6)
+    r = calibrate(smp, "eye-in-hand", feature_base="estimate", bootstrap=0)
+    _assert_T(r.T, X, 1e-8, 1e-6)
+    assert np.allclose(r.extra["feature_base"], g, atol=1e-8)
+
+
+def test_exact_recovery_eye_on_arm_eq7_and_eq8():
+    rng = np.random.default_rng(6)
+    X = T_from_rpy([0.2, 0.1, -0.4], [0.1, 0.0, 0.05])  # T_arm_camera
+    A = np.array(
+        [T_from_rpy(rng.uniform(-0.6, 0.6, 3), rng.uniform(-0.1, 0.1, 3) + [0.1, 0, 0.6]) for _ in range(12)]
+    )
+    # eq. 8: flange poses such that the flange centre lies in front of the camera
+    F = np.array(
+        [Ai @ X @ T_from_rpy(rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.1, 0.1, 3) + [0, 0, 0.5]) for Ai in A]
+    )
+    c8 = np.array(
+        [transform_points(invert(Ai @ X) @ Fi, np.zeros(3))[0] for Ai, Fi in zip(A, F, strict=True)]
+    )
+    smp = [
+        HandEyeSample(T_base_arm=Ai, T_base_flange=Fi, p_cam=ci) for Ai, Fi, ci in zip(A, F, c8, strict=True)
+    ]
+    r = calibrate(smp, "eye-on-arm", bootstrap=0)
+    assert r.name == "T_arm_camera"
+    _assert_T(r.T, X, 1e-9, 1e-6)
+    g = np.array([0.5, -0.2, 0.0])  # eq. 7: feature fixed in the cell
+    c7 = np.array([transform_points(invert(Ai @ X), g)[0] for Ai in A])
+    smp = [HandEyeSample(T_base_arm=Ai, p_cam=ci) for Ai, ci in zip(A, c7, strict=True)]
+    _assert_T(calibrate(smp, "eye-on-arm", feature_base=g.tolist(), bootstrap=0).T, X, 1e-9, 1e-6)
+
+
+def test_exact_recovery_co_manipulation():
+    rng = np.random.default_rng(7)
+    T_b1b2 = T_from_rpy([0, 0, np.pi], [1.2, 0.1, 0.0])
+    X1 = T_from_rpy([0.1, 0.0, 0.2], [0.0, 0.05, 0.08])  # T_flange1_camera
+    f2_parked = T_from_rpy([0.3, 0.2, 0.1], [0.6, 0.0, 0.4])  # robot 2's parked flange in base2
+    g = transform_points(T_b1b2 @ f2_parked, np.zeros(3))[0]
+    a = []
+    for _ in range(12):
+        G1 = T_from_rpy(rng.uniform(-0.5, 0.5, 3), rng.uniform(-0.1, 0.1, 3) + [0.6, 0.1, 0.8])
+        a.append(HandEyeSample(T_base_flange=G1, p_cam=transform_points(invert(G1 @ X1), g)[0], phase="a"))
+    G1p = T_from_rpy([np.pi, 0, 0], [0.6, 0.1, 1.0])
+    b = []
+    for _ in range(10):
+        F2 = T_from_rpy(rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.1, 0.1, 3) + [0.6, 0.0, 0.4])
+        p = transform_points(invert(G1p @ X1) @ T_b1b2 @ F2, np.zeros(3))[0]
+        b.append(HandEyeSample(T_base_flange=G1p, T_base2_flange2=F2, p_cam=p, phase="b"))
+    r = calibrate(a + b, "co-manipulation", bootstrap=0)
+    assert r.name == "T_base1_base2"
+    _assert_T(r.T, T_b1b2, 1e-7, 1e-7)
+    _assert_T(r.extra["T_flange1_camera"], X1, 1e-7, 1e-7)
+
+
+def test_algorithm1_converges_and_beats_all_data_with_outliers():
+    cell = simulate_cell(n_poses=60, rng=11)
+    rng = np.random.default_rng(11)
+    c = cell.noisy_p_cam(0.001, rng)
+    c[[5, 20, 33]] += [0.03, -0.02, 0.015]
+    pr = iterative_pool(c, cell.p_base, GroundTruthVerifier(cell.T_base_camera))
+    assert np.all(np.diff(pr.history[3:]) <= 1e-15)  # the pool's cost never grows
+    assert not set(pr.pool) & {5, 20, 33}
+    err_pool = pose_error(pr.H, cell.T_base_camera)[0]
+    err_all = pose_error(scaled_svd_fit(c, cell.p_base).T, cell.T_base_camera)[0]
+    assert err_pool < err_all / 3
+    # eq. 21: compensation with the ground-truth error recovers the truth
+    _assert_T(compensate(pr.H, pr.e), cell.T_base_camera, 1e-12, 1e-9)
+    # the consensus verifier (no ground truth) also keeps the outliers out
+    r = calibrate(
+        [HandEyeSample(p_base=p, p_cam=q) for p, q in zip(cell.p_base, c, strict=True)],
+        "eye-on-base",
+        method="flange-iterative",
+        bootstrap=0,
+    )
+    assert not set(r.metrics["pool"]) & {5, 20, 33}
+    assert pose_error(r.T, cell.T_base_camera)[0] < err_all
+
+
+def test_icp_metric_measures_the_planted_error():
+    model = iso9409_model(50.0, spacing=0.0005)
+    T_bf = T_from_rpy([np.pi, 0.1, 0.4], [0.55, 0.0, 0.35])
+    T_true = PAPER_T_BASE_CAMERA
+    cloud = transform_points(invert(T_true) @ T_bf, model)
+    e_true = T_from_rpy([0.0, 0.0, 0.01], [0.0015, -0.001, 0.0005])
+    H = T_true @ invert(e_true)  # so that H @ e_true = T_true
+    e = IcpVerifier(model, T_bf, cloud)(H)
+    assert e is not None
+    _assert_T(compensate(H, e), T_true, 3e-4, 2e-3)  # 1.9 mm planted -> < 0.3 mm left

@@ -1,0 +1,142 @@
+"""Bilateral filter (paper 000, eqs. 9-10), PCA normals and voxel down-sampling against known surfaces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from weldcell.plugins.scan_plan.denoise import (
+    bilateral_filter,
+    mean_spacing,
+    noise_level,
+    pca_normals,
+    radius_pairs,
+    voxel_downsample,
+)
+from weldcell.sdk.errors import DataError
+
+RNG = np.random.default_rng(0)
+H, SIGMA, R = 0.001, 0.0003, 0.004  # 1 mm grid, 0.3 mm noise, 4 mm filter radius
+
+
+def rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def gaussian_smoothing(P: np.ndarray, radius: float, sigma: float) -> np.ndarray:
+    """The plain alternative: every point replaced by the Gaussian-weighted mean of its neighbours."""
+    rows, cols, d = radius_pairs(P, radius)
+    w = np.exp(-(d**2) / (2 * sigma**2))
+    den = np.bincount(rows, weights=w, minlength=len(P))
+    return (
+        np.stack([np.bincount(rows, weights=w * P[cols, k], minlength=len(P)) for k in range(3)], 1)
+        / den[:, None]
+    )
+
+
+def grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    g = np.arange(n) * H
+    return np.meshgrid(g, g)
+
+
+def fillet_joint():
+    """A 90-degree inside corner (floor z = 0, wall x = 0) with 0.3 mm noise along the normals."""
+    A, B = grid(30)
+    floor = np.c_[A.ravel(), B.ravel(), np.zeros(A.size)]
+    wall = np.c_[np.zeros(A.size), B.ravel(), A.ravel() + H]
+    P0 = np.r_[floor, wall]
+    N0 = np.r_[np.tile([0, 0, 1.0], (len(floor), 1)), np.tile([1.0, 0, 0], (len(wall), 1))]
+    return P0, P0 + N0 * RNG.normal(0, SIGMA, (len(P0), 1))
+
+
+def dist_to_fillet(P: np.ndarray) -> np.ndarray:
+    x, z = P[:, 0], P[:, 2]
+    return np.minimum(np.hypot(np.minimum(x, 0), z), np.hypot(np.minimum(z, 0), x))
+
+
+def test_bilateral_reduces_noise_on_a_plane():
+    A, B = grid(40)
+    P = np.c_[A.ravel(), B.ravel(), RNG.normal(0, SIGMA, A.size)]
+    Q, N = bilateral_filter(P, R)
+    inner = (P[:, 0] > R) & (P[:, 0] < 0.039 - R) & (P[:, 1] > R) & (P[:, 1] < 0.039 - R)
+    assert rms(Q[inner, 2]) < rms(P[inner, 2]) / 2.5
+    assert np.allclose(Q[:, :2], P[:, :2], atol=2e-4)  # moved along the normal only
+    assert np.all(np.abs(N[inner, 2]) > 0.99)
+
+
+def test_bilateral_reduces_noise_on_a_sphere():
+    radius, n = 0.02, 30000
+    v = RNG.normal(size=(n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    P = v * (radius + RNG.normal(0, SIGMA, (n, 1)))
+    Q, _ = bilateral_filter(P, R)
+    err = lambda X: rms(np.linalg.norm(X, axis=1) - radius)  # noqa: E731
+    assert err(Q) < err(P) / 2.0
+    shrink = radius - np.mean(np.linalg.norm(Q, axis=1))
+    assert abs(shrink) < 2e-4  # under 1 % of the radius
+    assert abs(shrink) < radius - np.mean(np.linalg.norm(gaussian_smoothing(P, R, R / 2), axis=1))
+
+
+def test_bilateral_preserves_a_sharp_edge_better_than_gaussian_smoothing():
+    P0, P = fillet_joint()
+    near_edge = (P0[:, 0] < R) & (P0[:, 2] < R + H)
+    flat = ((P0[:, 0] > 2 * R) | (P0[:, 2] > 2 * R + H)) & (P0[:, 1] > R) & (P0[:, 1] < 0.029 - R)
+    Q, _ = bilateral_filter(P, R, iterations=2)
+    G = gaussian_smoothing(P, R, R / 2)
+    edge_bil, edge_gauss = rms(dist_to_fillet(Q[near_edge])), rms(dist_to_fillet(G[near_edge]))
+    assert edge_bil < 0.8 * rms(dist_to_fillet(P[near_edge]))  # the edge gets cleaner, not rounder
+    assert edge_bil < 0.65 * edge_gauss  # Gaussian smoothing rounds the corner off
+    assert rms(dist_to_fillet(Q[flat])) < rms(dist_to_fillet(P[flat])) / 3.0
+
+
+def test_given_normals_and_sigmas_are_used():
+    A, B = grid(20)
+    P = np.c_[A.ravel(), B.ravel(), RNG.normal(0, SIGMA, A.size)]
+    N = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+    Q, Nout = bilateral_filter(P, R, sigma_c=0.002, sigma_s=0.001, normals=N)
+    assert np.array_equal(Nout, N) and np.array_equal(Q[:, :2], P[:, :2])
+    assert rms(Q[:, 2]) < rms(P[:, 2])
+
+
+def test_pca_normals_and_noise_level():
+    A, B = grid(30)
+    P = np.c_[A.ravel(), B.ravel(), 0.5 * A.ravel() + RNG.normal(0, 1e-4, A.size)]
+    n_true = np.array([-0.5, 0.0, 1.0]) / np.linalg.norm([-0.5, 0.0, 1.0])
+    for kw in (dict(k=15), dict(radius=0.003)):
+        N = pca_normals(P, viewpoint=[0, 0, 1.0], **kw)
+        assert np.all(N @ n_true > 0.99)  # oriented to the viewpoint above the plane
+    assert noise_level(P, 0.003) == pytest.approx(1e-4 * n_true[2], rel=0.3)
+
+
+def test_mean_spacing_and_voxel_downsample_keep_extent():
+    A, B = grid(100)
+    P = np.c_[A.ravel(), B.ravel(), np.zeros(A.size)]
+    assert mean_spacing(P) == pytest.approx(H)
+    D = voxel_downsample(P, factor=4.0)
+    assert len(D) == pytest.approx(len(P) / 16, rel=0.1)
+    assert np.all(np.abs(np.ptp(D, axis=0) - np.ptp(P, axis=0)) <= 4 * H)
+    assert np.all(D.min(0) >= P.min(0) - 1e-12) and np.all(D.max(0) <= P.max(0) + 1e-12)
+    D2, N2 = voxel_downsample(P, voxel_size=0.01, normals=np.tile([0, 0, 1.0], (len(P), 1)))
+    assert len(D2) == 100 and np.allclose(N2, [0, 0, 1])
+    assert len(voxel_downsample(P, spacing=0.005, factor=1.0)) == 400
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: bilateral_filter(np.empty((0, 3)), 0.01),
+        lambda: bilateral_filter(np.array([[0, 0, 0], [np.nan, 0, 0], [1, 1, 1.0]]), 0.01),
+        lambda: bilateral_filter(np.ones((10, 2)), 0.01),
+        lambda: bilateral_filter(RNG.random((10, 3)), -1.0),
+        lambda: bilateral_filter(RNG.random((10, 3)), 0.1, normals=np.ones((9, 3))),
+        lambda: bilateral_filter(RNG.random((10, 3)), 0.1, iterations=0),
+        lambda: voxel_downsample(RNG.random((10, 3)), voxel_size=0.0),
+        lambda: voxel_downsample(np.empty((0, 3))),
+        lambda: mean_spacing(np.zeros((1, 3))),
+        lambda: pca_normals(np.full((5, 3), np.inf)),
+        lambda: noise_level(RNG.random((10, 3)) * 100, 0.001),
+    ],
+)
+def test_bad_inputs_raise_data_error(call):
+    with pytest.raises(DataError) as err:
+        call()
+    assert err.value.fix

@@ -1,0 +1,154 @@
+"""Linear point-to-plane ICP (paper 000, eqs. 2-8, 20) against known transforms and real LiDAR data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from weldcell.plugins.scan_plan.denoise import voxel_downsample
+from weldcell.plugins.scan_plan.metrics import fitness
+from weldcell.plugins.scan_plan.registration import NearestCache, linear_icp, point_to_plane_step
+from weldcell.sdk.errors import DataError
+from weldcell.sdk.geometry import T_from_rotvec, invert, pose_error, transform_points
+
+from .synthetic import corner_workpiece
+
+DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "small-gicp-lidar-pair" / "data"
+
+
+def _pair(noise: float = 0.0002, outliers: int = 0):
+    """Target and an independently sampled source with T_target_source = 5 deg about a tilted axis + 2 cm."""
+    target, normals = corner_workpiece(noise=noise, seed=1)
+    surf, _ = corner_workpiece(noise=noise, seed=2)
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    T_true = T_from_rotvec(np.deg2rad(5.0) * axis, [0.012, -0.01, 0.0125])  # |t| = 2.0 cm
+    source = transform_points(invert(T_true), surf)
+    if outliers:
+        rng = np.random.default_rng(3)
+        source = np.concatenate([source, rng.uniform(-0.05, 0.25, (outliers, 3))])
+    return source, target, normals, T_true
+
+
+def test_recovers_known_transform_with_given_normals():
+    source, target, normals, T_true = _pair()
+    res = linear_icp(source, target, normals, max_correspondence_distance=0.05, max_iterations=50)
+    dt, dr = pose_error(res.T, T_true)
+    assert dt < 2e-4 and dr < np.deg2rad(0.02)
+    assert res.converged and res.iterations < 50
+    fits = [h["fitness"] for h in res.history]
+    assert fits[0] <= res.fitness and np.all(np.diff(fits) >= -1e-3)
+    # at a tight inlier distance the share of aligned points (eq. 20) rises from well below to ~all
+    assert fitness(source, target, np.eye(4), max_distance=0.004) < 0.3
+    assert fitness(source, target, res.T, max_distance=0.004) > 0.99
+    assert res.plane_rmse < 4e-4 and res.history[0]["plane_rmse"] > 10 * res.plane_rmse  # 0.2 mm noise
+    assert res.history[0]["inlier_rmse"] > 5 * res.inlier_rmse
+    assert np.allclose(res.T[:3, :3] @ res.T[:3, :3].T, np.eye(3), atol=1e-12)  # rigid after every step
+
+
+def test_recovers_known_transform_with_pca_normals_and_paper_update():
+    source, target, _, T_true = _pair()
+    for update in ("exact", "linear"):
+        res = linear_icp(source, target, max_correspondence_distance=0.05, update=update)
+        dt, dr = pose_error(res.T, T_true)
+        assert dt < 3e-4 and dr < np.deg2rad(0.03), update
+
+
+def test_fitness_is_eq20_inliers_over_target_points():
+    source, target, normals, T_true = _pair(noise=0.0)
+    half = source[::2]
+    res = linear_icp(half, target, normals, T_true, max_correspondence_distance=0.004)
+    assert res.fitness == pytest.approx(len(half) / len(target) * res.inlier_fraction)
+    assert res.fitness == pytest.approx(len(half) / len(target), rel=0.02)
+
+
+def test_robust_kernel_resists_outliers():
+    source, target, normals, T_true = _pair(outliers=6000)
+    plain = linear_icp(source, target, normals, max_correspondence_distance=0.05)
+    for kernel in ("huber", "tukey"):
+        robust = linear_icp(source, target, normals, max_correspondence_distance=0.05, robust=kernel)
+        dt, dr = pose_error(robust.T, T_true)
+        assert dt < 5e-4 and dr < np.deg2rad(0.05), kernel
+        assert dt < pose_error(plain.T, T_true)[0]
+
+
+def test_initial_guess_is_used():
+    source, target, normals, T_true = _pair()
+    res = linear_icp(source, target, normals, T_true, max_correspondence_distance=0.01)
+    assert res.history[0]["fitness"] > 0.95 * res.fitness and res.iterations <= 5
+
+
+def test_single_linear_step_solves_a_small_motion():
+    target, normals = corner_workpiece(seed=4)
+    T = T_from_rotvec([0.0, 0.0, 1e-4], [1e-4, -2e-4, 5e-5])
+    x = point_to_plane_step(transform_points(invert(T), target), target, normals)
+    assert np.allclose(x, [0.0, 0.0, 1e-4, 1e-4, -2e-4, 5e-5], atol=2e-7)
+
+
+def test_nearest_cache_matches_a_full_query():
+    rng = np.random.default_rng(5)
+    target = rng.uniform(0, 1, (3000, 3))
+    source = rng.uniform(0, 1, (2000, 3))
+    tree = cKDTree(target)
+    cache = NearestCache(tree, target, 0.08, len(source))
+    pts = source
+    for step in range(12):
+        pts = transform_points(
+            T_from_rotvec(rng.normal(0, 0.01, 3), rng.normal(0, 0.01 / (step + 1), 3)), pts
+        )
+        d, i = cache.query(pts)
+        d_ref, i_ref = tree.query(pts, k=1, distance_upper_bound=0.08)
+        assert np.array_equal(np.isfinite(d), np.isfinite(d_ref))
+        ok = np.isfinite(d)
+        assert np.array_equal(i[ok], i_ref[ok]) and np.allclose(d[ok], d_ref[ok])
+    assert cache.n_queries < 12 * len(source)  # re-queried only points that may have changed neighbour
+
+
+@pytest.mark.data
+def test_real_lidar_pair_matches_reference():
+    if not (DATA / "source.ply").is_file():
+        pytest.skip(f"recorded LiDAR pair not found at {DATA}")
+    from weldcell.sdk.cloud import read_cloud
+
+    src = read_cloud(DATA / "source.ply", check_scale=False).points  # metres; 58 m extent (outdoor LiDAR)
+    tgt = read_cloud(DATA / "target.ply", check_scale=False).points
+    T_ref = np.loadtxt(DATA / "T_target_source.txt")
+    s, t = voxel_downsample(src, voxel_size=0.25), voxel_downsample(tgt, voxel_size=0.25)
+    # identity start, 0.49 m away from the reference: the correspondence distance must exceed the offset
+    res = linear_icp(s, t, max_correspondence_distance=0.5, max_iterations=50)
+    dt, dr = pose_error(res.T, T_ref)
+    dt0, _ = pose_error(np.eye(4), T_ref)
+    assert dt0 > 0.4
+    assert dt < 0.01 and dr < np.deg2rad(0.5)
+    assert res.converged and res.fitness > res.history[0]["fitness"]
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(source=np.empty((0, 3))),
+        dict(source=np.array([[0, 0, 0], [1, np.nan, 0], [0, 1, 0], [1, 1, 1.0]])),
+        dict(target=np.ones((10, 2))),
+        dict(target_normals=np.ones((5, 3))),
+        dict(init=np.diag([2.0, 1, 1, 1])),
+        dict(max_correspondence_distance=0.0),
+        dict(robust="cauchy"),
+        dict(update="quadratic"),
+    ],
+)
+def test_bad_inputs_raise_data_error(kwargs):
+    target, normals = corner_workpiece(spacing=0.01)
+    args = dict(
+        source=target + 0.001, target=target, target_normals=normals, max_correspondence_distance=0.01
+    )
+    args.update(kwargs)
+    with pytest.raises(DataError) as err:
+        linear_icp(**args)
+    assert err.value.fix
+
+
+def test_no_overlap_raises_data_error():
+    target, normals = corner_workpiece(spacing=0.01)
+    with pytest.raises(DataError, match="no correspondences"):
+        linear_icp(target + 5.0, target, normals, max_correspondence_distance=0.01)

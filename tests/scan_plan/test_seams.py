@@ -1,0 +1,277 @@
+"""Seam extraction (paper 000, eqs. 11-17) + joint classification and chaining, on synthetic workpieces
+sampled from triangle meshes with 0.2 mm Gaussian noise and voxel down-sampled to 1.5 mm."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+from scipy.spatial import cKDTree
+from weldcell.plugins.scan_plan.seams import (
+    CONCAVE,
+    CONVEX,
+    GROOVE,
+    SeamPolyline,
+    adaptive_neighbourhood,
+    edge_intensity,
+    edge_ratio,
+    extract_seams,
+)
+from weldcell.sdk.errors import DataError
+
+NOISE = 2e-4
+VOXEL = 1.5e-3
+
+
+# ----------------------------------------------------------------------------- synthetic workpieces
+
+
+def prism_mesh(poly_xz, length: float, drop_edges=()) -> o3d.geometry.TriangleMesh:
+    """Extrude a counter-clockwise (x, z) polygon along y in [0, length]; side strips only (open ends),
+    outward normals; polygon edges in ``drop_edges`` (e.g. the hidden bottom) are left out."""
+    poly = np.asarray(poly_xz, float)
+    V, T = [], []
+    for i in range(len(poly)):
+        if i in drop_edges:
+            continue
+        a, b = poly[i], poly[(i + 1) % len(poly)]
+        k = len(V)
+        V += [[a[0], 0, a[1]], [b[0], 0, b[1]], [b[0], length, b[1]], [a[0], length, a[1]]]
+        T += [[k, k + 2, k + 1], [k, k + 3, k + 2]]
+    V3, T3 = o3d.utility.Vector3dVector(np.array(V)), o3d.utility.Vector3iVector(np.array(T))
+    return o3d.geometry.TriangleMesh(V3, T3)
+
+
+def sample_mesh(mesh, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Area-uniform samples with triangle normals, plus Gaussian noise (seeded, unlike open3d's sampler)."""
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    cr = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    tri = rng.choice(len(F), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    f = u + v > 1
+    u[f], v[f] = 1 - u[f], 1 - v[f]
+    P = a[tri] + u[:, None] * (b - a)[tri] + v[:, None] * (c - a)[tri]
+    N = cr[tri] / np.linalg.norm(cr[tri], axis=1, keepdims=True)
+    return P + rng.normal(0, NOISE, P.shape), N
+
+
+def voxelize(P, N, voxel=VOXEL):
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pc.normals = o3d.utility.Vector3dVector(N)
+    q = pc.voxel_down_sample(voxel)
+    Nq = np.asarray(q.normals)
+    return np.asarray(q.points), Nq / np.linalg.norm(Nq, axis=1, keepdims=True)
+
+
+def t_fillet(seed=0, W=0.04, T=0.008, w=0.005, H=0.03, L=0.1, n=60000):
+    """A web (2w x H) standing on a plate (2W x T), length L: two fillet roots at x = +-w, z = T."""
+    poly = [(-W, 0), (W, 0), (W, T), (w, T), (w, T + H), (-w, T + H), (-w, T), (-W, T)]
+    P, N = voxelize(*sample_mesh(prism_mesh(poly, L, drop_edges=(0,)), n, np.random.default_rng(seed)))
+    roots = [np.array([[w, 0, T], [w, L, T]]), np.array([[-w, 0, T], [-w, L, T]])]
+    outline = [np.array([[s * W, 0, T], [s * W, L, T]]) for s in (-1, 1)]
+    return P, N, roots, outline
+
+
+def v_groove(seed=0, W=0.04, T=0.01, f=0.002, half=np.deg2rad(30), L=0.1, n=60000):
+    """Two plates bevelled by ``half`` (60 deg included V), root face f: groove bottom at x = 0, z = f."""
+    g = (T - f) * np.tan(half)
+    poly = [(-W, 0), (W, 0), (W, T), (g, T), (0, f), (-g, T), (-W, T)]
+    P, N = voxelize(*sample_mesh(prism_mesh(poly, L, drop_edges=(0,)), n, np.random.default_rng(seed)))
+    return P, N, [np.array([[0, 0, f], [0, L, f]])]
+
+
+def cylinder_on_plate(seed=0, W=0.05, T=0.008, R=0.02, H=0.03, n=60000):
+    """A cylinder (radius R) standing on a plate: one closed root circle at z = T."""
+    rng = np.random.default_rng(seed)
+    plate = prism_mesh([(-W, 0), (W, 0), (W, T), (-W, T)], 2 * W, drop_edges=(0,)).translate((0, -W, 0))
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=R, height=H, resolution=120, split=4)
+    cyl.translate((0, 0, T + H / 2))
+    Pp, Np = sample_mesh(plate, int(n * 0.75), rng)
+    keep = ~((np.hypot(Pp[:, 0], Pp[:, 1]) < R) & (Pp[:, 2] > T - 1e-3))  # plate top under the cylinder
+    Pc, Nc = sample_mesh(cyl, int(n * 0.25), rng)
+    keepc = Pc[:, 2] > T + 4 * NOISE  # the bottom cap sits on the plate: hidden
+    P, N = voxelize(np.vstack([Pp[keep], Pc[keepc]]), np.vstack([Np[keep], Nc[keepc]]))
+    th = np.linspace(0, 2 * np.pi, 1441)
+    return P, N, np.column_stack([R * np.cos(th), R * np.sin(th), np.full_like(th, T)])
+
+
+def distance_to_segment(X: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    a, b = seg
+    u = (b - a) / np.linalg.norm(b - a)
+    t = np.clip((X - a) @ u, 0, np.linalg.norm(b - a))
+    return np.linalg.norm(X - (a + t[:, None] * u), axis=1)
+
+
+def seams_near(seams: list[SeamPolyline], seg: np.ndarray, tol: float) -> list[SeamPolyline]:
+    return [s for s in seams if np.median(distance_to_segment(s.points, seg)) < tol]
+
+
+@pytest.fixture(scope="module")
+def tee():
+    P, N, roots, outline = t_fillet()
+    return P, N, roots, outline, extract_seams(P, N)
+
+
+@pytest.fixture(scope="module")
+def groove():
+    P, N, gt = v_groove()
+    return P, N, gt, extract_seams(P, N)
+
+
+@pytest.fixture(scope="module")
+def saddle():
+    P, N, gt = cylinder_on_plate()
+    return P, N, gt, extract_seams(P, N)
+
+
+# ----------------------------------------------------------------------------- eqs. 11-16
+
+
+def test_adaptive_neighbourhood_has_at_least_m_members():
+    rng = np.random.default_rng(0)
+    P = np.vstack([rng.normal(0, 0.001, (200, 3)), rng.normal(0.05, 0.01, (20, 3))])  # a sparse outlier cloud
+    nb = adaptive_neighbourhood(P, cKDTree(P), r=0.0005, m=8, k_max=16)
+    assert np.all(nb.valid.sum(1) >= 8)
+    far = np.arange(200, 220)
+    assert np.all(nb.r_eff[far] > 0.0005)  # grown radius where fewer than m lie within r
+    dense = nb.dist[:200] < 0.0005
+    assert np.array_equal(nb.valid[:200] | ~dense, np.ones_like(dense)) or np.all(nb.valid[:200][dense])
+
+
+def test_edge_intensity_is_high_on_a_crease_and_low_on_a_plane():
+    g = np.linspace(-0.01, 0.01, 41)
+    x, y = np.meshgrid(g, g)
+    plane = np.c_[x.ravel(), y.ravel(), 0 * x.ravel()]
+    crease = np.c_[x.ravel(), y.ravel(), 0.5 * np.abs(x.ravel())]  # 127 deg V along y
+    for P, lo, hi in ((plane, 0, 1e-9), (crease, 0.05, 1.0)):
+        nb = adaptive_neighbourhood(P, cKDTree(P), r=0.0016, m=8, k_max=48)  # all within r kept
+        I = edge_intensity(P, nb)
+        centre = (np.abs(P[:, 0]) < 1e-6) & (np.abs(P[:, 1]) < 0.005)
+        assert lo <= I[centre].min() and I[centre].max() <= hi
+    # on the crease the ridge is a local maximum across it (eq. 12's "local maximum at edges")
+    row = (np.abs(crease[:, 1]) < 1e-9) & (np.abs(crease[:, 0]) < 0.005)
+    assert np.argmax(I[row]) == np.argmin(np.abs(crease[row, 0]))
+
+
+def test_edge_ratio_is_27_for_isotropic_tensors_and_grows_with_anisotropy():
+    H = np.stack([np.eye(3), np.diag([5.0, 5.0, 1.0]), np.diag([50.0, 1.0, 1.0])])
+    r = edge_ratio(H, floor=0.0)
+    assert r[0] == pytest.approx(27.0)
+    assert r[1] == pytest.approx(11**3 / 25) and r[2] == pytest.approx(52**3 / 50)
+
+
+def test_threshold_controls_the_number_of_edge_points(tee):
+    P, N = tee[0], tee[1]
+    counts = [extract_seams(P, N, t=t).edge_mask.sum() for t in (30, 60, 200)]
+    assert counts[0] > counts[1] > counts[2]
+
+
+# ----------------------------------------------------------------------------- seams on workpieces
+
+
+def test_t_fillet_both_roots_found_within_1mm(tee):
+    _, _, roots, _, res = tee
+    for root in roots:
+        near = seams_near(res.seams, root, 0.003)
+        assert len(near) == 1, f"expected one seam on {root.tolist()}, got {len(near)}"
+        s = near[0]
+        assert s.joint_class == "concave" and not s.closed
+        assert distance_to_segment(s.points, root).max() < 1e-3
+        assert s.length > 0.08  # covers most of the 100 mm root
+        # approach points into the joint: -(n_web + n_plate) / sqrt(2)
+        sx = np.sign(root[0, 0])
+        expect = np.array([-sx, 0, -1]) / np.sqrt(2)
+        assert np.degrees(np.arccos(np.clip(s.normals @ expect, -1, 1))).max() < 10
+
+
+def test_t_fillet_plate_outline_and_web_top_not_returned(tee):
+    P, _, roots, outline, res = tee
+    for s in res.seams:
+        d_out = min(np.median(distance_to_segment(s.points, o)) for o in outline)
+        assert d_out > 0.005, "a plate outline edge was returned as a seam"
+        assert np.median(s.points[:, 2]) < 0.01, "the web top (convex) was returned as a seam"
+    # the outline is a detected edge, but classified convex
+    on_outline = np.min([distance_to_segment(P, o) for o in outline], axis=0) < 5e-4
+    lab = res.labels[on_outline & res.edge_mask]
+    assert np.mean(lab == CONVEX) > 0.5 and not np.any(lab == GROOVE)
+
+
+def test_v_groove_bottom_found_within_1mm(groove):
+    _, _, gt, res = groove
+    near = seams_near(res.seams, gt[0], 0.003)
+    assert len(near) == 1
+    s = near[0]
+    assert s.joint_class == "groove"
+    assert distance_to_segment(s.points, gt[0]).max() < 1e-3
+    assert np.degrees(np.arccos(np.clip(s.normals @ [0, 0, -1.0], -1, 1))).max() < 10
+    assert len(res.seams) == 1  # bevel tops, plate outline and scan borders are not seams
+
+
+def test_cylinder_on_plate_is_one_closed_seam(saddle):
+    _, _, ring, res = saddle
+    assert len(res.seams) == 1
+    s = res.seams[0]
+    assert s.closed and s.joint_class == "concave"
+    d, _ = cKDTree(ring).query(s.points)
+    assert d.max() < 1e-3
+    assert s.length == pytest.approx(2 * np.pi * 0.02, rel=0.03)
+    ang = np.unwrap(np.arctan2(s.points[:, 1], s.points[:, 0]))
+    assert np.all(np.diff(ang) > 0)  # ordered, counter-clockwise seen from the torch (from above)
+    assert np.ptp(ang) > 2 * np.pi * 0.95
+    assert np.all(s.normals[:, 2] < -0.5)
+
+
+def test_seams_are_ordered_monotonically_along_travel(tee):
+    for s in tee[-1].seams:
+        assert np.all(np.diff(s.points[:, 1]) > 0)  # roots run along +y
+        steps = np.linalg.norm(np.diff(s.points, axis=0), axis=1)
+        assert steps.std() < 0.05 * steps.mean()  # resampled at a fixed spacing
+
+
+def test_without_normals_the_orientation_heuristic_finds_the_groove_and_ring():
+    P, _, gt = v_groove(seed=3)
+    res = extract_seams(P)
+    near = seams_near(res.seams, gt[0], 0.003)
+    assert len(near) == 1 and distance_to_segment(near[0].points, gt[0]).max() < 1e-3
+    P, _, ring = cylinder_on_plate(seed=3)
+    res = extract_seams(P)
+    assert [s.closed for s in res.seams] == [True]
+
+
+def test_min_seam_length_and_joint_filter(tee):
+    P, N = tee[0], tee[1]
+    assert extract_seams(P, N, min_seam_length=0.5).seams == []
+    assert extract_seams(P, N, joints=("groove",)).seams == []
+    res = extract_seams(P, N)
+    assert set(np.unique(res.labels[res.edge_mask])) <= {CONCAVE, GROOVE, CONVEX, 4, 5}
+    assert not np.any(res.labels[~res.edge_mask])
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    "points, match",
+    [
+        (np.zeros((0, 3)), "empty"),
+        (np.array([[0.0, 0, 0], [np.nan, 0, 0]] * 10), "NaN"),
+        (np.random.default_rng(0).random((5, 3)), "m=12"),
+        (np.zeros((10, 2)), r"\(N, 3\)"),
+    ],
+)
+def test_bad_input_raises_data_error(points, match):
+    with pytest.raises(DataError, match=match) as e:
+        extract_seams(points)
+    assert e.value.fix
+
+
+def test_bad_settings_raise_data_error(tee):
+    P = tee[0]
+    with pytest.raises(DataError, match="t must be >= 27"):
+        extract_seams(P, t=10)
+    with pytest.raises(DataError, match="joint class"):
+        extract_seams(P, joints=("butt",))
+    with pytest.raises(DataError, match="normals"):
+        extract_seams(P, normals=np.zeros((3, 3)))
