@@ -77,13 +77,11 @@ def end_stats(r: TrackingResult, seam: np.ndarray) -> dict[str, float]:
     flips = int(np.sum(np.diff(np.sign(big)) != 0)) if len(big) > 1 else 0
     jerk = float(np.abs(np.diff(r.twist[i0:, :2], n=2, axis=0)).max()) * 50**3
     over = float((r.robot[-1, :2] - seam[-1, :2]) @ t_end[:2]) * 1e3
-    lat = float(np.abs((r.torch[i0:, :2] - seam[-1, :2]) @ n_wall[:2]).max()) * 1e3
     return {
         "normal_velocity_sign_flips": flips,
         "max_jerk_m_s3": jerk,
         "overshoot_past_seam_end_mm": over,
         "stop_reason": r.stop_reason,
-        "torch_max_lateral_after_loss_mm": lat - 2.0,
     }
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import click
 from rich.console import Console
+from rich.markup import escape
 
 from weldcell.sdk.errors import WeldcellError
 from weldcell.sdk.plugins import get_plugin_manager
@@ -56,7 +57,7 @@ class RichReporter:
 
     def info(self, message: str) -> None:
         if not self.quiet:
-            console.print(f"  {message}")
+            console.print(f"  {message}", markup=True)
 
 
 class WeldcellGroup(click.Group):
@@ -84,11 +85,11 @@ class WeldcellGroup(click.Group):
             debug = ctx.meta.get("weldcell.debug", False)
             if debug:
                 traceback.print_exc()
-            console.print(f"[bold red]error:[/bold red] {e.message}")
+            console.print(f"[bold red]error:[/bold red] {escape(e.message)}")
             for line in getattr(e, "problems", []) or []:
-                console.print(f"  - {line}")
+                console.print(f"  - {escape(line)}")
             if e.fix:
-                console.print(f"  [bold]fix:[/bold] {e.fix}")
+                console.print(f"  [bold]fix:[/bold] {escape(e.fix)}")
             if not debug:
                 console.print("  [dim](--debug shows the traceback)[/dim]")
             ctx.exit(e.exit_code)
@@ -180,9 +181,9 @@ def profiles_validate(files: tuple[Path, ...]) -> None:
             loaded, resolved = prepare(f, pm)
         except ProfileError as e:
             failed += 1
-            console.print(f"[red]✗[/red] {f}: {e.message}")
+            console.print(f"[red]✗[/red] {escape(str(f))}: {escape(e.message)}")
             for line in e.problems:
-                console.print(f"    - {line}")
+                console.print(f"    - {escape(line)}")
             continue
         devices = ", ".join(f"{r}={s.name}" for r, (s, _) in resolved["devices"].items())
         out.print(f"[green]✓[/green] {f}  job={loaded.profile.job.name}  devices: {devices or '-'}")

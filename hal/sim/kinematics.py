@@ -40,7 +40,6 @@ from weldcell.sdk.geometry import interpolate_poses, pose_error, rotation_angle
 
 from .robot_models import ROBOT_TABLES
 
-_EPS = 1e-9
 _TWO_PI = 2.0 * math.pi
 
 

@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 import pyaubo_sdk
-
 from weldcell.hal.lifecycle import State
 from weldcell.hal.robot import Robot
 from weldcell.hal.safety import SafetyGate
@@ -87,7 +86,8 @@ class AuboRobot(Robot):
         if not names:
             raise DeviceError("the AUBO controller reports no robot", "check the controller configuration")
         if s.robot_name and s.robot_name not in names:
-            raise DeviceError(f"no robot {s.robot_name!r} on the controller (it has {names})", "fix robot_name")
+            raise DeviceError(f"no robot {s.robot_name!r} on the controller (it has {names})",
+                              "fix robot_name")
         self.robot_name = s.robot_name or names[0]
         self._ri = rpc.getRobotInterface(self.robot_name)
         st = self._ri.getRobotState()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pydantic import Field
-
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.sdk.units import Duration
 

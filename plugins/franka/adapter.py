@@ -9,7 +9,8 @@ in Desk, EE = NE plus :meth:`set_ee`). weldcell's robot API is in the flange fra
 * servo:    the flange twist (base frame) is moved to the EE origin, ``v_EE = v_F + ω × (R_OF · p_F_EE)``.
 
 Speeds. franky scales Franka's own limits with a *relative dynamics factor*; a TCP speed ``v`` [m/s] is sent
-as ``RelativeDynamicsFactor(v / vmax, a / amax, min(...))`` with the limits from the settings (Panda defaults).
+as ``RelativeDynamicsFactor(v / vmax, a / amax,
+                            min(...))`` with the limits from the settings (Panda defaults).
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from typing import Any
 
 import franky
 import numpy as np
-
 from weldcell.hal.lifecycle import State
 from weldcell.hal.robot import Robot
 from weldcell.hal.safety import SafetyGate
@@ -136,7 +136,8 @@ class FrankaRobot(Robot):
         return np.asarray(st.q, dtype=float).ravel(), T, extra
 
     def _move_linear(self, T_base_flange: np.ndarray, speed: float, accel: float) -> None:
-        m = franky.CartesianMotion(self._ee(T_base_flange), franky.ReferenceType.Absolute, self._dyn(speed, accel))
+        m = franky.CartesianMotion(self._ee(T_base_flange), franky.ReferenceType.Absolute, self._dyn(speed,
+                                                                                                     accel))
         self._run(m, "linear move")
 
     def _move_joint(self, q: np.ndarray, speed: float, accel: float) -> None:
@@ -155,7 +156,8 @@ class FrankaRobot(Robot):
         tw = np.asarray(twist, dtype=float).reshape(6)
         st = self._guard("state read", lambda: self._robot.state)
         O_T_EE = np.asarray(st.O_T_EE.matrix, dtype=float)
-        r = O_T_EE[:3, :3] @ invert(np.asarray(st.F_T_EE.matrix, dtype=float))[:3, 3]  # EE -> flange, base frame
+        r = O_T_EE[:3, :3] @ invert(np.asarray(st.F_T_EE.matrix, dtype=float))[:3,
+                                                                               3]  # EE -> flange, base frame
         v_ee = tw[:3] - np.cross(tw[3:], r)
         m = franky.CartesianVelocityMotion(franky.Twist(v_ee, tw[3:]),
                                            duration=franky.Duration(max(1, int(round(duration * 1000)))),
@@ -180,7 +182,8 @@ def make_franka(settings: FrankaSettings, ctx: Any) -> FrankaRobot:
     try:
         model = get_model(settings.model)
     except Exception as e:
-        raise SafetyError(f"robot.franka: unknown kinematic model {settings.model!r}", "use 'franka-panda'") from e
+        raise SafetyError(f"robot.franka: unknown kinematic model {settings.model!r}",
+                          "use 'franka-panda'") from e
     gate = SafetyGate(getattr(ctx, "safety", None), model=model)
     return FrankaRobot(settings, name=getattr(ctx, "role", "franka"), gate=gate,
                        dry_run=bool(getattr(ctx, "dry_run", False)))

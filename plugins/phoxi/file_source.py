@@ -7,7 +7,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from weldcell.hal.interfaces import DepthCamera
 from weldcell.hal.readings import DepthFrame, Intrinsics
 from weldcell.sdk.cloud import guess_units
@@ -31,7 +30,8 @@ def resolve_files(spec: str) -> list[Path]:
     else:
         files = [p] if p.is_file() else []
     if not files:
-        raise DeviceError(f"no PLY file found at {spec!r}", "check the path/pattern in the phoxi 'files' setting")
+        raise DeviceError(f"no PLY file found at {spec!r}",
+                          "check the path/pattern in the phoxi 'files' setting")
     return files
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from weldcell.hal.readings import DepthFrame, Intrinsics
 from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
@@ -46,7 +45,8 @@ def _front(points: np.ndarray) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > 0)]
     if len(p) == 0:
-        raise DataError("the cloud has no point in front of the camera (z > 0)", "check the file's frame/units")
+        raise DataError("the cloud has no point in front of the camera (z > 0)",
+                        "check the file's frame/units")
     return p
 
 
@@ -121,7 +121,8 @@ def point_map_frame(xyz_m: np.ndarray, intrinsics: Intrinsics, frame: str, *, st
     """A :class:`DepthFrame` from an organised (H, W, 3) point map in metres (invalid points all-zero/NaN)."""
     xyz = np.asarray(xyz_m, dtype=np.float64)
     if xyz.ndim != 3 or xyz.shape[2] != 3:
-        raise DataError(f"a point map must be (H, W, 3), got {xyz.shape}", "reshape the Range data to rows x cols")
+        raise DataError(f"a point map must be (H, W, 3), got {xyz.shape}",
+                        "reshape the Range data to rows x cols")
     z = xyz[..., 2]
     valid = np.isfinite(xyz).all(axis=2) & (z > 0)
     depth = np.where(valid, z, 0.0).astype(np.float32)

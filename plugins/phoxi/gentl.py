@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 from harvesters.core import Harvester
-
 from weldcell.hal.interfaces import DepthCamera
 from weldcell.hal.readings import DepthFrame, Intrinsics
 from weldcell.sdk.errors import DeviceError
@@ -32,7 +31,7 @@ DEVICE_KEYS = ("serial_number", "id_", "user_defined_name", "display_name", "mod
 
 
 def find_cti(settings: PhoXiSettings) -> str:
-    """The GenTL producer file: the setting, else ``$PHOXI_CTI``, else a *.cti in ``$GENICAM_GENTL64_PATH``."""
+    """The GenTL producer: the setting, else ``$PHOXI_CTI``, else a *.cti in ``$GENICAM_GENTL64_PATH``."""
     if settings.cti_path:
         cand = settings.cti_path
     elif os.environ.get("PHOXI_CTI"):
@@ -47,13 +46,19 @@ def find_cti(settings: PhoXiSettings) -> str:
             raise DeviceError(
                 "no GenTL producer (.cti) for the PhoXi: cti_path is empty, PHOXI_CTI is unset and "
                 "GENICAM_GENTL64_PATH holds no .cti",
-                "install PhoXi Control and set cti_path (e.g. /opt/Photoneo/PhoXiControl/API/lib/photoneo.cti) "
+                "install PhoXi Control and set cti_path "
+                "(e.g. /opt/Photoneo/PhoXiControl/API/lib/photoneo.cti) "
                 "or export PHOXI_CTI",
             )
         cand = (photoneo or found)[0]
     if not Path(cand).is_file():
         raise DeviceError(f"GenTL producer {cand!r} does not exist", "fix cti_path / PHOXI_CTI")
     return cand
+
+
+def _label(info: Any) -> str:
+    d = info.property_dict
+    return str(d.get("serial_number") or d.get("id_"))
 
 
 def _node(nm: Any, name: str) -> Any:
@@ -111,7 +116,8 @@ class PhoXiGenTLCamera(DepthCamera):
                 nm.ComponentSelector.value = comp
             except Exception:
                 if comp == "Range":
-                    raise DeviceError("the scanner has no 'Range' component", "update the PhoXi firmware") from None
+                    raise DeviceError("the scanner has no 'Range' component",
+                                      "update the PhoXi firmware") from None
                 continue
             nm.ComponentEnable.value = bool(on)
             if on:
@@ -123,15 +129,15 @@ class PhoXiGenTLCamera(DepthCamera):
         want = self.settings.device_id.strip()
         if not want:
             if len(infos) > 1:
-                names = [str(i.property_dict.get("serial_number") or i.property_dict.get("id_")) for i in infos]
+                names = [_label(i) for i in infos]
                 raise DeviceError(f"{len(infos)} scanners found ({', '.join(names)}); which one?",
                                   "set device_id to the scanner's ID")
             return 0
         for i, info in enumerate(infos):
             d = info.property_dict
-            if any(str(d.get(k, "") or "") == want or str(d.get(k, "") or "").endswith(want) for k in DEVICE_KEYS):
+            if any(str(d.get(k) or "").endswith(want) for k in DEVICE_KEYS):
                 return i
-        seen = [str(i.property_dict.get("serial_number") or i.property_dict.get("id_")) for i in infos]
+        seen = [_label(i) for i in infos]
         raise DeviceError(f"no scanner with ID {want!r} (found: {', '.join(seen)})", "fix device_id")
 
     def _read_intrinsics(self, nm: Any) -> Intrinsics | None:

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-
 from weldcell.sdk.errors import DataError
 
 _PLY_TYPES = {
@@ -25,7 +24,7 @@ _PLY_TYPES = {
 
 @dataclass
 class PlyGrid:
-    """The vertices of one PLY file and its grid organisation (``rows`` x ``cols``; 1 x N when unorganised)."""
+    """The vertices of one PLY file and its grid (``rows`` x ``cols``; 1 x N when unorganised)."""
 
     path: Path
     vertex: dict[str, np.ndarray]
@@ -43,7 +42,8 @@ class PlyGrid:
         return np.asarray(arr).reshape(self.rows, self.cols, *np.asarray(arr).shape[1:])
 
 
-def _parse_header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], list[str], int]:
+def _parse_header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]],
+                                                   list[str], int]:
     end = raw.find(b"end_header")
     if not raw.startswith(b"ply") or end < 0:
         raise DataError(f"{path} is not a PLY file (no 'ply' magic / 'end_header')", "export the scan as PLY")
@@ -89,7 +89,8 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         for name, count, props in elements:
             if any(t == "list" for t, _ in props):
                 if name == "vertex":
-                    raise DataError(f"{path}: list properties in vertices are not supported", "export points only")
+                    raise DataError(f"{path}: list properties in vertices are not supported",
+                                    "export points only")
                 row += count
                 continue
             block = text[row:row + count]
@@ -108,7 +109,8 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         for name, count, props in elements:
             if any(t == "list" for t, _ in props):
                 if name == "vertex":
-                    raise DataError(f"{path}: list properties in vertices are not supported", "export points only")
+                    raise DataError(f"{path}: list properties in vertices are not supported",
+                                    "export points only")
                 break  # cannot skip variable-length rows; nothing after this is needed
             dt = np.dtype([(p, order + t) for t, p in props])
             need = dt.itemsize * count
@@ -132,10 +134,12 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         cols, rows = int(m_cols.group(1)), int(m_rows.group(1))
     if rows * cols != n:
         rows, cols = 1, n
-    return PlyGrid(path=path, vertex=vertex, rows=rows, cols=cols, organised=rows > 1 and cols > 1, header=lines)
+    return PlyGrid(path=path, vertex=vertex, rows=rows, cols=cols, organised=rows > 1 and cols > 1,
+                   header=lines)
 
 
-def write_ply_grid(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = None, binary: bool = True) -> Path:
+def write_ply_grid(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = None,
+                   binary: bool = True) -> Path:
     """Write an organised (H, W, 3) point map as a PCL-style PLY (``camera`` element = grid size)."""
     xyz = np.asarray(xyz, dtype=np.float32)
     h, w = xyz.shape[:2]
@@ -147,7 +151,8 @@ def write_ply_grid(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None
     head = ["ply", f"format {fmt} 1.0", "comment weldcell organised point map", f"element vertex {h * w}"]
     head += [f"property float {k}" for k in cols]
     cam_props = ["view_px", "view_py", "view_pz", "x_axisx", "x_axisy", "x_axisz", "y_axisx", "y_axisy",
-                 "y_axisz", "z_axisx", "z_axisy", "z_axisz", "focal", "scalex", "scaley", "centerx", "centery"]
+                 "y_axisz", "z_axisx", "z_axisy", "z_axisz", "focal", "scalex", "scaley", "centerx",
+                 "centery"]
     head += ["element camera 1"] + [f"property float {p}" for p in cam_props]
     head += ["property int viewportx", "property int viewporty", "property float k1", "property float k2",
              "end_header"]

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Literal
 
 from pydantic import Field
-
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Duration
 
@@ -24,10 +23,11 @@ class PhoXiSettings(Settings):
     normals: bool = Field(True, description="also transfer the Normal component")
     confidence: bool = Field(False, description="also transfer the Confidence component")
     scan_timeout: Duration = Field(10.0, gt=0, description="longest wait for one triggered scan [s]")
-    files: str = Field("", description="file mode: a folder (all *.ply, sorted), a glob pattern or one PLY file")
+    files: str = Field("",
+                       description="file mode: a folder (all *.ply, sorted), a glob pattern or one PLY file")
     units: Literal["mm", "m", "auto"] = Field("mm", description="file mode: units of the PLY coordinates "
                                               "(PhoXi Control exports mm)")
     loop: bool = Field(True, description="file mode: start again at the first file after the last one")
     intrinsics: tuple[float, float, float, float] | None = Field(
-        None, description="file mode: (fx, fy, cx, cy) in pixels of the exported grid; default: fitted to the "
-        "organised XYZ map, or a virtual camera for unorganised exports")
+        None, description="file mode: (fx, fy, cx, cy) in pixels of the exported grid; default: fitted "
+        "to the organised XYZ map, or a virtual camera for unorganised exports")

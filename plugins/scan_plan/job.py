@@ -167,7 +167,7 @@ def execute(ctx, path, speed: float, approach: float) -> None:
             above = seam.poses[0].copy()
             above[:3, 3] -= approach * above[:3, 2]
             high = above.copy()  # the approach pose at the current height: joint moves stay clear of the part
-            high[2, 3] = max(start[2, 3], above[2, 3])
+            high[2, 3] = max(above[2, 3], min(start[2, 3], above[2, 3] + 0.15))
             if robot.gate.model is not None:
                 q = robot.gate.solve(high @ invert(robot.T_flange_tcp), robot.state().q, f"approach of {seam.id}")
                 robot.move_joint(q)
@@ -188,21 +188,28 @@ def ground_truth(ctx):
 
 
 def evaluate(weld_path, gt, standoff: float) -> dict:
-    """Eq. 21 (rasterized F1) and eq. 22 (pose RMSE) of every found seam against its nearest true seam."""
+    """Eq. 21 (rasterized F1) and eq. 22 (pose RMSE) of every found seam against its nearest true seam.
+
+    The pose error is measured on the seam frames themselves (origin on the seam, z = the estimated
+    approach, x = travel), i.e. without the deliberate standoff, work and travel angles of the plan.
+    """
     from weldcell.plugins.scan_plan.metrics import pose_rmse, seam_f1
+    from weldcell.plugins.scan_plan.torch_path import torch_frames, travel_directions
 
     if not gt or not weld_path.seams:
         return {"seams_found": len(weld_path.seams), "seams_true": len(gt or [])}
     gt_pts = np.vstack([s.points for _, s in gt])
     pred_pts = np.vstack([s.points for s in weld_path.seams])
-    out = {"seams_found": len(weld_path.seams), "seams_true": len(gt), "f1": seam_f1(pred_pts, gt_pts, cell=0.002)}
+    out = {"seams_found": len(weld_path.seams), "seams_true": len(gt),
+           "f1": seam_f1(pred_pts, gt_pts, cell=0.002, tolerance_cells=1)}
     per = []
     for seam in weld_path.seams:
         name, truth = min(gt, key=lambda g: float(np.mean(np.min(np.linalg.norm(
             seam.points[::5, None, :] - g[1].points[None, ::5, :], axis=2), axis=1))))
-        poses = seam.poses.copy()
-        poses[:, :3, 3] += standoff * poses[:, :3, 2]  # torch axis meets the seam at the standoff
-        r = pose_rmse(poses, truth.points, truth.approach, truth.travel)
+        approach = np.asarray(seam.extra["approach"], dtype=float)
+        travel = travel_directions(seam.points, 5, seam.closed)
+        frames = torch_frames(seam.points, approach, travel, standoff=0.0, work_angle=0.0, travel_angle=0.0)
+        r = pose_rmse(frames, truth.points, truth.approach, truth.travel)
         per.append({"seam": seam.id, "truth": f"{name}/{truth.id}", **r})
     out["per_seam"] = per
     out["translation_rmse_mm"] = float(np.sqrt(np.mean([p["translation_m"] ** 2 for p in per])) * 1000)

@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 import pytest
-
 from weldcell.hal.lifecycle import State
 from weldcell.sdk.errors import DeviceError
 from weldcell.testing.conformance import RobotConformance

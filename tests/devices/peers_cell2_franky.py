@@ -1,8 +1,10 @@
 """A fake ``franky.Robot`` (franky-control 2.x) driving a kinematic Panda, for the Franka adapter tests.
 
-Only the robot connection is faked: motions, poses, twists, joint states, dynamics factors, modes and exceptions
-are franky's own classes, so the adapter is exercised against franky's real value API. Signatures mirror
-``franky._franky._RobotInternal`` (checked in the tests against the pybind11 docstrings): ``Robot(fci_hostname,
+Only the robot connection is faked: motions, poses, twists, joint states, dynamics factors, modes and
+exceptions are franky's own classes, so the adapter is exercised against franky's real value API.
+Signatures mirror
+``franky._franky._RobotInternal`` (checked in the tests against the pybind11 docstrings):
+``Robot(fci_hostname,
 relative_dynamics_factor=1.0, default_torque_threshold=20.0, default_force_threshold=30.0, ...)``,
 ``move(motion, asynchronous=False, limit_rate=False, cutoff_frequency=100.0)``, ``join_motion(timeout=None)``,
 ``poll_motion()``, ``stop()``, ``recover_from_errors()``, properties ``state`` (``q``, ``dq``, ``O_T_EE``,
@@ -18,7 +20,6 @@ from dataclasses import dataclass, field
 
 import franky
 import numpy as np
-
 from weldcell.hal.sim.kinematics import get_model
 from weldcell.sdk.geometry import T_from_rotvec, invert
 
@@ -83,7 +84,8 @@ class FakeFrankyRobot:
     control_rate = 0.001
     degrees_of_freedom = 7
 
-    def __init__(self, fci_hostname: str, relative_dynamics_factor=1.0, default_torque_threshold: float = 20.0,
+    def __init__(self, fci_hostname: str, relative_dynamics_factor=1.0,
+                 default_torque_threshold: float = 20.0,
                  default_force_threshold: float = 30.0, *, world: FrankaWorld, **kwargs) -> None:
         if not world.reachable:
             raise franky.NetworkException("libfranka: Connection to FCI refused.")

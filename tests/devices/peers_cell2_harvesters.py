@@ -7,7 +7,8 @@ check_existence=False, check_validity=False)``, ``update()``, ``device_info_list
 returning a ``Buffer`` context manager (``payload.components``, ``timestamp_ns``), ``stop()``, ``destroy()``;
 components with ``data`` (1-D numpy), ``width``, ``height``, ``data_format``. The node map behaves like
 Photoneo's GenICam features: ``ComponentSelector``/``ComponentEnable``/``ComponentIDValue``,
-``TriggerSelector``/``TriggerMode``/``TriggerSource``/``TriggerSoftware``, ``Scan3d*`` intrinsics. Parts of the
+``TriggerSelector``/``TriggerMode``/``TriggerSource``/``TriggerSoftware``, ``Scan3d*`` intrinsics.
+Parts of the
 multi-part payload come in increasing component-ID order, as Photoneo documents. A fetch with no triggered
 scan raises genicam's ``TimeoutException`` (after at most 50 ms here, to keep tests fast).
 """
@@ -53,7 +54,8 @@ class SimPhoXi:
     def render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Organised XYZ (H, W, 3) mm (zeros where nothing is measured), normals, Mono12 texture."""
         v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
-        d = np.stack([(u - self.cu) / self.f, (v - self.cv) / (self.f * self.aspect), np.ones_like(u)], axis=2)
+        d = np.stack([(u - self.cu) / self.f, (v - self.cv) / (self.f * self.aspect), np.ones_like(u)],
+                     axis=2)
         # tilted plane z = plane_z + 0.3 x
         t_plane = self.plane_z / (d[..., 2] - 0.3 * d[..., 0])
         t = t_plane.copy()
@@ -217,7 +219,8 @@ class FakeImageAcquirer:
                  "Range": rng,
                  "Confidence": _Component(np.where(xyz[..., 2] > 0, 255, 0).astype(np.uint8).ravel(),
                                           self.sim.width, self.sim.height, "Confidence8"),
-                 "Normal": _Component(normals.ravel().copy(), self.sim.width, self.sim.height, "Coord3D_ABC32f")}
+                 "Normal": _Component(normals.ravel().copy(), self.sim.width, self.sim.height,
+                                      "Coord3D_ABC32f")}
         comps = [parts[n] for n in sorted(parts, key=COMPONENT_IDS.get) if nm.enabled.get(n)]
         self.sim.scans += 1
         return FakeBuffer(comps, time.time_ns())
@@ -255,7 +258,8 @@ class FakeHarvester:
 
     def update(self) -> None:
         self.device_info_list = [] if not self.files else [
-            _DeviceInfo({"id_": f"PhotoneoTL_DEV_{s.serial}", "serial_number": s.serial, "model": "PhoXi3DScanner",
+            _DeviceInfo({"id_": f"PhotoneoTL_DEV_{s.serial}", "serial_number": s.serial,
+                         "model": "PhoXi3DScanner",
                          "vendor": "Photoneo", "display_name": f"PhoXi {s.serial}", "user_defined_name": "",
                          "access_status": 1, "tl_type": "Custom", "version": "1.13.0"})
             for s in self._system.scanners if not s.unplugged]

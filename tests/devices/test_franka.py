@@ -7,7 +7,6 @@ import re
 import franky
 import numpy as np
 import pytest
-
 from peers_cell2_conformance import RobotConformanceFixed, lifecycle
 from peers_cell2_franky import FakeFrankyRobot, FrankaWorld
 from weldcell.hal.lifecycle import State

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from peers_cell2_harvesters import FakeGenTLSystem, SimPhoXi
 from weldcell.hal.lifecycle import State
 from weldcell.plugins import phoxi as phoxi_plugin
@@ -74,7 +73,8 @@ def test_gentl_frame_is_the_exact_point_map(gentl):
         k = cam.intrinsics()
     nm = gentl.acquirers[0].remote_device.node_map
     assert (nm.TriggerMode.value, nm.TriggerSource.value) == ("On", "Software")
-    assert nm.enabled["Range"] and nm.enabled["Intensity"] and nm.enabled["Normal"] and not nm.enabled["ColorCamera"]
+    assert nm.enabled["Range"] and nm.enabled["Intensity"] and nm.enabled["Normal"]
+    assert not nm.enabled["ColorCamera"]
     assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx((sim.f, sim.f * sim.aspect, sim.cu, sim.cv))
     np.testing.assert_allclose(f.meta["xyz"], xyz_mm.astype(np.float64) * 1e-3, atol=1e-9)
     np.testing.assert_allclose(f.depth, xyz_mm[..., 2] * 1e-3, atol=1e-7)
@@ -146,7 +146,8 @@ class TestPhoXiFileConformance(DepthCameraConformance):
 @needs_sample
 def test_file_mode_replays_the_real_scans_exactly():
     files = sorted(SAMPLE.glob("*_tool.ply"))
-    cam = PhoXiFileCamera(PhoXiSettings(mode="file", files=str(SAMPLE / "*_tool.ply"), loop=True), name="phoxi")
+    cam = PhoXiFileCamera(PhoXiSettings(mode="file", files=str(SAMPLE / "*_tool.ply"), loop=True),
+                          name="phoxi")
     with cam:
         frames = [cam.capture() for _ in range(len(files) + 1)]
     assert [Path(f.meta["file"]).name for f in frames[:-1]] == [p.name for p in files]

@@ -60,7 +60,7 @@ def test_ur5_fk_matches_independent_dh_product() -> None:
     # The "upright" configuration: upper arm and forearm vertical, tool sideways.
     q_up = np.array([0.0, -math.pi / 2, 0.0, -math.pi / 2, 0.0, 0.0])
     T_up = m.fk(q_up)
-    # worked by hand: z = d1 + |a2| + |a3| + d5, x = 0... d6 along -y, d4 along -y
+    # by hand: links 2-3 and d5 stack up along z (d1 + |a2| + |a3| + d5); d4 and d6 point along -y
     assert T_up[:3, 3] == pytest.approx(
         [0.0, -(0.10915 + 0.0823), 0.089159 + 0.425 + 0.39225 + 0.09465], abs=1e-9
     )
