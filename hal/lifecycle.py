@@ -76,7 +76,8 @@ class Device:
 
     # -- transitions -----------------------------------------------------------------------------
     @property
-    def state(self) -> State:
+    def lifecycle(self) -> State:
+        """The lifecycle state (named so that robots can offer ``state()`` for their joint state)."""
         return self._state
 
     def _transition(self, allowed: tuple[State, ...], hook, target: State, verb: str) -> None:
@@ -170,10 +171,19 @@ class Device:
 
     # -- context manager -------------------------------------------------------------------------
     def __enter__(self):
-        if self._state is State.UNCONFIGURED:
-            self.configure()
-        if self._state is State.INACTIVE:
-            self.activate()
+        try:
+            if self._state is State.UNCONFIGURED:
+                self.configure()
+            if self._state is State.INACTIVE:
+                self.activate()
+        except BaseException:
+            # __exit__ does not run when __enter__ raises: release what configure() opened here
+            # (the reason stays in health().message); the original error propagates.
+            try:
+                self.close()
+            except Exception:  # noqa: BLE001 - never mask the original error
+                pass
+            raise
         return self
 
     def __exit__(self, *exc) -> None:

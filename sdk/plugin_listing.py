@@ -53,8 +53,8 @@ def plugin_table(pm: PluginManager, out: Console, as_json: bool = False) -> None
         for col in ("category", "name", "kind", "status", "summary"):
             t.add_column(col, overflow="fold")
         for r in plugins[name]:
-            status = "[green]ok[/green]" if r["status"] == "ok" else f"[yellow]{r['status']}[/yellow]"
-            t.add_row(r["category"], r["name"], r["kind"], status, r["summary"])
+            status = "[green]ok[/green]" if r["status"] == "ok" else f"[yellow]{escape(r['status'])}[/yellow]"
+            t.add_row(r["category"], r["name"], r["kind"], status, escape(r["summary"]))
         out.print(t)
         out.print()
     if reg.failures:
@@ -64,7 +64,7 @@ def plugin_table(pm: PluginManager, out: Console, as_json: bool = False) -> None
     if reg.conflicts:
         out.print("[bold red]conflicts:[/bold red]")
         for c in reg.conflicts.values():
-            out.print(f"  - {c}")
+            out.print(f"  - {escape(str(c))}")
 
 
 def device_report(pm: PluginManager, out: Console, profile: Path | None) -> int:
@@ -77,10 +77,10 @@ def device_report(pm: PluginManager, out: Console, profile: Path | None) -> int:
         for e in reg.all("device"):
             d = e.descriptor
             missing = d.missing_extras()
-            needs = ", ".join(f"weldcell[{x}]" for x in sorted(set(d.requires.values()))) or "-"
+            needs = escape(", ".join(f"weldcell[{x}]" for x in sorted(set(d.requires.values()))) or "-")
             if missing:
                 needs = f"[yellow]{needs} (missing: {', '.join(m for m, _ in missing)})[/yellow]"
-            t.add_row(d.name, d.kind, "yes" if d.simulated else "", needs, d.summary)
+            t.add_row(d.name, d.kind, "yes" if d.simulated else "", needs, escape(d.summary))
         out.print(t)
         return 0
     from weldcell.sdk.jobs import prepare
@@ -92,8 +92,9 @@ def device_report(pm: PluginManager, out: Console, profile: Path | None) -> int:
             out.print(f"  {role}: {spec.name}: [dim]no reachability probe[/dim]")
             continue
         try:
-            out.print(f"  {role}: {spec.name}: [green]reachable[/green] {spec.probe(settings)}")
+            out.print(f"  {role}: {spec.name}: [green]reachable[/green] {escape(spec.probe(settings))}")
         except WeldcellError as e:
             code = 5
-            out.print(f"  {role}: {spec.name}: [red]not reachable[/red]: {e.message}" + (f" ({e.fix})" if e.fix else ""))
+            out.print(f"  {role}: {spec.name}: [red]not reachable[/red]: {escape(e.message)}"
+                      + (f" ({escape(e.fix)})" if e.fix else ""))
     return code

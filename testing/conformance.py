@@ -51,17 +51,17 @@ class DeviceConformance:
         assert device.kind == self.interface.kind
 
     def test_lifecycle_order(self, device):
-        assert device.state is State.UNCONFIGURED
+        assert device.lifecycle is State.UNCONFIGURED
         with pytest.raises(DeviceError):
             device.activate()  # not configured yet
         device.configure()
-        assert device.state is State.INACTIVE and device.health().ok
+        assert device.lifecycle is State.INACTIVE and device.health().ok
         device.activate()
-        assert device.state is State.ACTIVE
+        assert device.lifecycle is State.ACTIVE
         device.deactivate()
-        assert device.state is State.INACTIVE
+        assert device.lifecycle is State.INACTIVE
         device.close()
-        assert device.state is State.FINALIZED
+        assert device.lifecycle is State.FINALIZED
         device.close()  # idempotent
 
     def test_no_reading_unless_active(self, device):
@@ -75,9 +75,9 @@ class DeviceConformance:
     def test_context_manager_opens_and_always_closes(self, device):
         with pytest.raises(RuntimeError):
             with device as d:
-                assert d.state is State.ACTIVE
+                assert d.lifecycle is State.ACTIVE
                 raise RuntimeError("boom")
-        assert device.state is State.FINALIZED
+        assert device.lifecycle is State.FINALIZED
 
     def test_readings_carry_timestamp_and_frame(self, device):
         with device as d:
@@ -99,9 +99,9 @@ class DeviceConformance:
             with pytest.raises(DeviceError):
                 for _ in range(50):
                     self.read_once(d)
-            assert d.state is State.ERROR and not d.health().ok and d.health().message
+            assert d.lifecycle is State.ERROR and not d.health().ok and d.health().message
             d.recover()
-            assert d.state is State.UNCONFIGURED
+            assert d.lifecycle is State.UNCONFIGURED
             d.configure()
             d.activate()
             self.read_once(d)

@@ -14,6 +14,7 @@ from weldcell.hal.interfaces import DepthCamera, DisplacementSensor, GestureSens
 from weldcell.hal.readings import DepthFrame, Displacement, GnssFix, HandsFrame, ImuReading, Intrinsics  # noqa: F401
 from weldcell.hal.robot import Robot, RobotMotionSettings
 from weldcell.hal.safety import SafetyGate
+from weldcell.hal.sim.flange import FlangeGeometry, flange_mesh, posed_mesh
 from weldcell.hal.sim.hands import HandScript
 from weldcell.hal.sim.kinematics import RobotModel
 from weldcell.hal.sim.world import SimWorld
@@ -26,7 +27,8 @@ class SimRobot(Robot):
 
     def __init__(self, model: RobotModel, world: SimWorld, T_world_base: np.ndarray | None = None,
                  name: str = "robot", gate: SafetyGate | None = None, motion: RobotMotionSettings | None = None,
-                 dry_run: bool = False, q_start: np.ndarray | None = None) -> None:
+                 dry_run: bool = False, q_start: np.ndarray | None = None,
+                 flange: FlangeGeometry | None = None) -> None:
         super().__init__(name, gate or SafetyGate(model=model), motion, dry_run)
         self.model = model
         self.world = world
@@ -37,6 +39,8 @@ class SimRobot(Robot):
         world.add_frame(f"{name}.base", lambda: self.T_world_base)
         world.add_frame(f"{name}.flange", lambda: self.T_world_base @ self.model.fk(self.q))
         world.robots[name] = self
+        if flange is not None:  # the flange plate and last link, seen by the depth cameras
+            world.attach(f"{name}.flange-geometry", f"{name}.flange", *flange_mesh(flange))
 
     def on_configure(self) -> None:
         self._check_link()
@@ -108,11 +112,26 @@ class SimDepthCamera(DepthCamera):
         self.frame_time = frame_time
         self.camera = None
         self.delivering = True
+        self._attached: dict[str, tuple[int, np.ndarray]] = {}
 
     def on_configure(self) -> None:
         from weldcell.hal.sim.camera_model import RaycastCamera
 
         self.camera = RaycastCamera(self.preset, self.world.meshes(), decimation=self.decimation)
+        self._attached = {}
+
+    def _pose_attached(self) -> None:
+        """Add, re-pose or remove the world's attached meshes (robot flanges) in the ray-cast scene."""
+        for name, att in self.world.attachments.items():
+            T = self.world.T_world(att.frame)
+            known = self._attached.get(name)
+            if known is None:
+                self._attached[name] = (self.camera.add(posed_mesh(att.vertices, att.triangles, T)), T)
+            elif not np.array_equal(known[1], T):
+                self.camera.replace(known[0], posed_mesh(att.vertices, att.triangles, T))
+                self._attached[name] = (known[0], T)
+        for name in [n for n in self._attached if n not in self.world.attachments]:
+            self.camera.remove(self._attached.pop(name)[0])
 
     def on_recover(self) -> None:
         self.delivering = True
@@ -130,6 +149,7 @@ class SimDepthCamera(DepthCamera):
     def _capture(self, timeout: float) -> DepthFrame:
         if not self.delivering:
             raise self.fault(f"no frame within {timeout:.1f} s")
+        self._pose_attached()
         img = self.camera.render(self.T_world_camera, rng=self.rng, noise=self.noise)
         self.world.clock.advance(self.frame_time)
         return DepthFrame(stamp=time.time(), depth=img.depth, intrinsics=self._intrinsics(), frame=self.name,

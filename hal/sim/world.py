@@ -3,11 +3,14 @@
 Simulated devices of one run share one :class:`SimWorld` (through the run's ``shared`` dict).
 The world frame is the cell's fixed frame; each robot registers its base (its mount) and a live
 flange frame ``<role>.flange``; a camera mounted on ``<role>.flange`` follows the robot.
+Meshes can be *attached* to a live frame (a robot's flange and last link): depth cameras re-pose them
+before every render, so they move with the robot.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,6 +30,15 @@ class SimClock:
         return self.t
 
 
+@dataclass(frozen=True)
+class Attachment:
+    """A rigid mesh (vertices in ``frame``) that moves with a live frame of the world."""
+
+    frame: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+
 class SimWorld:
     """Workpieces placed in the world, live frames of robots, and the ray-casting scene."""
 
@@ -38,6 +50,7 @@ class SimWorld:
         self._frames: dict[str, Callable[[], np.ndarray]] = {"world": lambda: np.eye(4)}
         self._scene = None
         self.robots: dict[str, object] = {}
+        self.attachments: dict[str, Attachment] = {}
 
     @classmethod
     def from_section(cls, section, seed: int = 0) -> SimWorld:
@@ -70,6 +83,19 @@ class SimWorld:
         return self._frames[frame]()
 
     # -- geometry --------------------------------------------------------------------------------
+    def attach(self, name: str, frame: str, vertices: np.ndarray, triangles: np.ndarray) -> None:
+        """Attach a mesh (vertices (N, 3) in ``frame``, triangles (M, 3)) to a live frame under ``name``."""
+        V = np.asarray(vertices, dtype=float).reshape(-1, 3)
+        F = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        if len(F) == 0 or F.min() < 0 or F.max() >= len(V) or not np.all(np.isfinite(V)):
+            raise DataError(f"attached mesh '{name}' is empty or has bad indices/vertices",
+                            "give finite vertices and triangles indexing them")
+        self.attachments[name] = Attachment(frame, V, F)
+
+    def detach(self, name: str) -> None:
+        """Remove an attached mesh (nothing happens if there is none of that name)."""
+        self.attachments.pop(name, None)
+
     def meshes(self) -> list:
         """Every workpiece mesh in the world frame, plus the table top as a large thin box."""
         import open3d as o3d

@@ -3,7 +3,7 @@ denoising, edge-intensity seam extraction and 6-DOF torch paths."""
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import DeviceRole, JobSpec, StageRole, StageSpec
+from weldcell.sdk.descriptors import CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
 from weldcell.sdk.hookspecs import hookimpl
 
 
@@ -40,3 +40,13 @@ def weldcell_register_jobs(register) -> None:
                 StageRole("seam", "seam", "seam.edge-intensity", "find the seams"),
                 StageRole("path", "path", "path.torch-frames", "plan the torch path")),
     ))
+
+
+@hookimpl
+def weldcell_register_commands(register) -> None:
+    from weldcell.plugins.scan_plan import cli
+
+    register(CommandSpec(name="seam", command=cli.seam_command,
+                         summary="denoise -> seams -> 6-DOF torch paths on a cloud in the base frame"))
+    register(CommandSpec(name="reconstruct", command=cli.reconstruct_command,
+                         summary="merge posed scans + hand-eye into a model refined by linear ICP"))

@@ -19,6 +19,7 @@ paper's absolute mapping.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -67,7 +68,7 @@ class GestureScanSettings(Settings):
         0.4, ge=0, description="how long a right fist must be held to end the scan [s]"
     )
     sensor_rpy: tuple[Angle, Angle, Angle] = Field(
-        (1.5707963, 0.0, 0.0),
+        (math.pi / 2, 0.0, 0.0),
         description="orientation of the sensor in the robot base frame (roll, pitch, yaw) [rad]; the default "
         "maps the Leap's y (up) to base z and its z (toward the user) to base -y",
     )

@@ -3,28 +3,34 @@ seam extraction → 6-DOF weld path → metrics, robot programs and a report."""
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+
 import numpy as np
 from pydantic import Field
-
+from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
 from weldcell.sdk.artifacts import read_json
-from weldcell.sdk.cloud import PointCloud, drop_invalid, read_cloud, write_cloud
+from weldcell.sdk.cloud import drop_invalid, read_cloud, write_cloud
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import invert
+from weldcell.sdk.scan import PosedScan
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Duration, Length, Speed
-
-from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
-from weldcell.sdk.scan import PosedScan
 
 
 class ScanAndPlanSettings(Settings):
     """Settings of the scan-and-plan job."""
 
-    gesture: GestureScanSettings = Field(default_factory=GestureScanSettings, description="the gesture joystick")
+    gesture: GestureScanSettings = Field(
+        default_factory=GestureScanSettings, description="the gesture joystick"
+    )
     max_scan_time: Duration = Field(180.0, gt=0, description="end the scan after this much sensor time [s]")
     max_captures: int = Field(40, ge=1, description="end the scan after this many captures")
     min_captures: int = Field(1, ge=1, description="fewer captures than this is an error")
     reconnects: int = Field(3, ge=0, description="reconnection attempts when a device drops mid-scan")
+    reconnect_delay: Duration = Field(
+        0.5, ge=0, description="wait before the 2nd reconnection attempt, doubled for each further one [s]"
+    )
     execute: bool = Field(False, description="follow the planned weld path with the robot (dry-run aware)")
     weld_speed: Speed = Field(0.01, gt=0, description="travel speed when executing the path [m/s]")
     min_depth_points: int = Field(500, ge=1, description="a capture with fewer valid points is refused")
@@ -34,54 +40,100 @@ class ScanAndPlanSettings(Settings):
     roi_max: tuple[Length, Length, Length] | None = Field(
         None, description="keep only points below this corner of the robot base frame when merging [m]"
     )
-    approach_distance: Length = Field(0.05, gt=0, description="joint move to this far above the seam start [m]")
+    approach_distance: Length = Field(
+        0.05, gt=0, description="joint move to this far above the seam start [m]"
+    )
+
+
+def read_hand_eye(path) -> np.ndarray:
+    """``T_flange_camera`` from a hand-eye file (``weldcell/hand-eye@1`` or any JSON with a 4x4 ``T``)."""
+    from weldcell.sdk.geometry import is_rigid
+
+    doc = read_json(path)
+    if not isinstance(doc, dict):
+        raise DataError(f"{path}: not a hand-eye file (a JSON object with a 4x4 'T')",
+                        "write it with `weldcell calibrate hand-eye`")
+    name = doc.get("transform")
+    if isinstance(name, str) and name not in ("T_flange_camera", "T_tool0_camera", "T_ee_camera"):
+        raise DataError(f"{path}: this hand-eye result is {name}, not T_flange_camera (camera on the flange)",
+                        "scan-and-plan needs an eye-in-hand calibration; calibrate with config 'eye-in-hand'")
+    try:
+        T = np.asarray(doc.get("T", doc.get("T_flange_camera")), dtype=float)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    if T.shape != (4, 4) or not is_rigid(T, tol=1e-4):
+        raise DataError(f"{path}: no rigid 4x4 'T' in the hand-eye file",
+                        "write it with `weldcell calibrate hand-eye`")
+    units = doc.get("units", "m")
+    if units != "m":
+        from weldcell.sdk.cloud import UNIT_SCALE
+
+        if units not in UNIT_SCALE:
+            raise DataError(f"{path}: unknown units {units!r}", "use 'm' or 'mm'")
+        T = T.copy()
+        T[:3, 3] *= UNIT_SCALE[units]
+    return T
 
 
 def hand_eye(ctx) -> tuple[np.ndarray, str]:
     """``T_flange_camera`` from the profile's calibration file, else from the camera's mount."""
     f = ctx.calibration_file("hand_eye")
     if f is not None:
-        doc = read_json(f)
-        T = np.asarray(doc.get("T", doc.get("transform")), dtype=float)
-        if T.shape != (4, 4):
-            raise DataError(f"{f}: no 4x4 'T' in the hand-eye file", "write it with `weldcell calibrate hand-eye`")
-        return T, str(f)
+        return read_hand_eye(f), str(f)
     cam = ctx.profile.devices["camera"]
-    robot_role = next(iter(r for r, e in ctx.profile.devices.items() if e.plugin.startswith("robot.")), "robot")
+    robots = [r for r, e in ctx.profile.devices.items() if e.plugin.startswith("robot.")]
+    robot_role = robots[0] if robots else "robot"
     if cam.mount.parent != f"{robot_role}.flange":
         raise JobError(
             "the camera is not mounted on the robot flange and no hand-eye calibration is given",
-            "set [devices.camera.mount] parent = 'robot.flange' (eye-in-hand) or add [calibration] hand_eye = ...",
+            "set [devices.camera.mount] parent = 'robot.flange' (eye-in-hand) or add "
+            "[calibration] hand_eye = ...",
         )
     from weldcell.sdk.geometry import T_from_rpy
 
     return T_from_rpy(cam.mount.rpy, cam.mount.xyz), "profile mount (nominal)"
 
 
-def _retry(ctx, device, what: str, fn, attempts: int):
-    """Call ``fn``; on a DeviceError recover the device and retry (captures are already saved)."""
+def _retry(ctx, device, what: str, fn, attempts: int, delay: float = 0.0):
+    """Call ``fn``; on a DeviceError recover the device and retry (captures are already saved).
+
+    A recovery that itself fails (the device is still gone) counts as an attempt; attempts after the
+    first wait ``delay`` seconds, doubled each time. When every attempt fails, a JobError tells how to
+    resume the run.
+    """
+    last: DeviceError | None = None
     for k in range(attempts + 1):
+        if k > 0:
+            ctx.reporter.info(f"[yellow]{what}: {last.message}; reconnecting ({k}/{attempts})[/yellow]")
+            if delay > 0 and k > 1:
+                time.sleep(delay * 2 ** (k - 2))
+            try:
+                device.recover()
+                device.configure()
+                device.activate()
+            except DeviceError as e:
+                last = e
+                continue
         try:
             return fn()
         except DeviceError as e:
-            if k == attempts:
-                raise JobError(
-                    f"{what}: {e.message} (after {attempts} reconnection attempts)",
-                    f"captures so far are saved in {ctx.run_dir}; fix the device and run again with "
-                    f"`weldcell run {ctx.loaded.path} --resume {ctx.run_dir}`",
-                ) from e
-            ctx.reporter.info(f"[yellow]{what}: {e.message}; reconnecting ({k + 1}/{attempts})[/yellow]")
-            device.recover()
-            device.configure()
-            device.activate()
-    raise AssertionError("unreachable")
+            last = e
+    raise JobError(
+        f"{what}: {last.message} (after {attempts} reconnection attempt{'s' if attempts != 1 else ''})",
+        f"captures so far are saved in {ctx.run_dir}; fix the device and run again with "
+        f"`weldcell run {ctx.loaded.path} --resume {ctx.run_dir}`",
+    ) from last
 
 
 def load_captures(ctx) -> list[PosedScan]:
     """Scans recorded in state.json (after a resume), read back from the run folder."""
     scans = []
-    for rec in ctx.state.captures:
-        cloud = read_cloud(ctx.run_dir / rec["file"], units="m", frame="camera", check_scale=False)
+    for i, rec in enumerate(ctx.state.captures):
+        f = ctx.run_dir / rec["file"]
+        if not f.is_file():
+            raise JobError(f"capture {i} of the resumed run ({rec['file']}) is missing from {ctx.run_dir}",
+                           "restore the file, or start a new run without --resume")
+        cloud = read_cloud(f, units="m", frame="camera", check_scale=False)
         scans.append(PosedScan(cloud, np.asarray(rec["T_base_flange"], dtype=float), float(rec["stamp"])))
     return scans
 
@@ -91,6 +143,7 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
     s: ScanAndPlanSettings = ctx.settings
     robot, camera, sensor = ctx.device("robot"), ctx.device("camera"), ctx.device("gesture")
     scans = load_captures(ctx)
+    resumed = len(scans)
     if scans:
         ctx.reporter.info(f"resuming with {len(scans)} capture(s) already taken")
     ctl = GestureScanController(s.gesture)
@@ -99,7 +152,7 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
     with ctx.step("scan (gesture-guided)", total=s.max_captures) as advance:
         advance(len(scans), s.max_captures, "captures")
         while len(scans) < s.max_captures:
-            frame = _retry(ctx, sensor, "gesture sensor", lambda: sensor.read(), s.reconnects)
+            frame = _retry(ctx, sensor, "gesture sensor", sensor.read, s.reconnects, s.reconnect_delay)
             stamp = frame.stamp
             t0 = stamp if t0 is None else t0
             if stamp - t0 > s.max_scan_time or getattr(sensor, "finished", False):
@@ -108,12 +161,12 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
             T_base_camera = state.T_base_flange @ T_flange_camera
             cmd = ctl.update(frame, T_base_camera, stamp=stamp)
             if cmd.capture:
-                depth = _retry(ctx, camera, "camera", lambda: camera.capture(), s.reconnects)
+                depth = _retry(ctx, camera, "camera", camera.capture, s.reconnects, s.reconnect_delay)
                 pose = robot.state().T_base_flange
                 cloud = drop_invalid(depth.to_cloud())
                 if len(cloud) < s.min_depth_points:
-                    ctx.reporter.info(f"[yellow]capture refused: only {len(cloud)} valid points (is the part in "
-                                      "view and in range?)[/yellow]")
+                    ctx.reporter.info(f"[yellow]capture refused: only {len(cloud)} valid points (is the part "
+                                      "in view and in range?)[/yellow]")
                     continue
                 name = f"scans/{len(scans):03d}.ply"
                 write_cloud(ctx.path(name), cloud)
@@ -130,8 +183,10 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
                 except SafetyError as e:
                     refused += 1
                     if refused == 1 or refused % 50 == 0:
-                        ctx.reporter.info(f"[yellow]gesture target refused by the safety gate: {e.message}[/yellow]")
-    ctx.figures["scan"] = {"captures": len(scans), "refused_targets": refused}
+                        ctx.reporter.info(
+                            f"[yellow]gesture target refused by the safety gate: {e.message}[/yellow]"
+                        )
+    ctx.figures["scan"] = {"captures": len(scans), "resumed_captures": resumed, "refused_targets": refused}
     if len(scans) < s.min_captures:
         raise JobError(f"the scan ended with {len(scans)} capture(s); at least {s.min_captures} are needed",
                        "make the 'ok' sign with the right hand while the part is in view")
@@ -158,23 +213,74 @@ def crop_to_roi(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[PosedSc
     return out
 
 
-def execute(ctx, path, speed: float, approach: float) -> None:
-    """Joint move above each seam's start, then follow its torch poses (all through the safety gate)."""
-    robot = ctx.device("robot")
-    with ctx.step("execute weld path", total=len(path.seams)) as advance:
-        for i, seam in enumerate(path.seams):
-            start = robot.state().T_base_tcp
+@dataclass
+class SeamMotion:
+    """The motions that weld one seam: a joint move (``q_high``; a linear move to ``high`` when the robot
+    has no kinematic model) to a pose above the seam start, a linear move down to ``above``, then the
+    torch poses and back out through ``above`` and ``high`` at weld speed."""
+
+    seam_id: str
+    q_high: np.ndarray | None
+    high: np.ndarray
+    above: np.ndarray
+    path: np.ndarray
+
+
+def plan_execution(robot, path, speed: float, approach: float) -> list[SeamMotion]:
+    """Check every motion of executing ``path`` through the robot's safety gate, from the robot's current
+    state, before anything is sent: one unreachable pose anywhere refuses the whole execution.
+
+    Raises SafetyError naming the seam and the motion; the robot has not moved.
+    """
+    gate, T_ft = robot.gate, robot.T_flange_tcp
+    st = robot.state()
+    T_prev, q = st.T_base_tcp, st.q
+    lin_speed, lin_accel = robot.motion.speed, robot.motion.accel
+    plans = []
+    for seam in path.seams:
+        try:
             above = seam.poses[0].copy()
             above[:3, 3] -= approach * above[:3, 2]
             high = above.copy()  # the approach pose at the current height: joint moves stay clear of the part
-            high[2, 3] = max(above[2, 3], min(start[2, 3], above[2, 3] + 0.15))
-            if robot.gate.model is not None:
-                q = robot.gate.solve(high @ invert(robot.T_flange_tcp), robot.state().q, f"approach of {seam.id}")
-                robot.move_joint(q)
+            high[2, 3] = max(above[2, 3], min(T_prev[2, 3], above[2, 3] + 0.15))
+            q_high = None
+            if gate.model is not None:
+                q_high = gate.solve(high @ invert(T_ft), q, f"approach of {seam.id}")
+                gate.check_joint_speed(robot.motion.joint_speed, robot.motion.joint_accel)
+                for a in np.linspace(0.0, 1.0, 25):  # as Robot.move_joint checks it
+                    T = gate.model.fk((1 - a) * q + a * q_high) @ T_ft
+                    gate.check_point(T[:3, 3], f"joint move to the approach of {seam.id}")
+                q = q_high
             else:
-                robot.move_linear(high)
-            robot.move_linear(above)
-            robot.follow_path(np.concatenate([seam.poses, above[None], high[None]]), speed=speed)
+                q = gate.check_linear(T_prev, high, T_ft, lin_speed, lin_accel, q, f"approach of {seam.id}")
+            q = gate.check_linear(high, above, T_ft, lin_speed, lin_accel, q, f"descent to {seam.id}")
+            poses = np.concatenate([seam.poses, above[None], high[None]])
+            T_seg = above
+            for i, T in enumerate(poses):
+                q = gate.check_linear(T_seg, T, T_ft, speed, robot.motion.accel, q, f"path segment {i}")
+                T_seg = T
+        except SafetyError as e:
+            raise SafetyError(f"seam {seam.id} cannot be welded: {e.message}; nothing was sent to the robot",
+                              e.fix) from None
+        plans.append(SeamMotion(seam.id, q_high, high, above, poses))
+        T_prev = high
+    return plans
+
+
+def execute(ctx, path, speed: float, approach: float) -> None:
+    """Check the whole execution first (:func:`plan_execution`), then per seam: joint move above its
+    start, down, and follow its torch poses (each command again through the safety gate)."""
+    robot = ctx.device("robot")
+    with ctx.step("check weld path motions"):
+        plans = plan_execution(robot, path, speed, approach)
+    with ctx.step("execute weld path", total=len(plans)) as advance:
+        for i, m in enumerate(plans):
+            if m.q_high is not None:
+                robot.move_joint(m.q_high)
+            else:
+                robot.move_linear(m.high)
+            robot.move_linear(m.above)
+            robot.follow_path(m.path, speed=speed)
             advance(i + 1)
 
 
@@ -224,6 +330,8 @@ def run(ctx) -> dict:
     s: ScanAndPlanSettings = ctx.settings
     T_flange_camera, he_source = hand_eye(ctx)
     ctx.figures["hand_eye_source"] = he_source
+    ctx.state.data["notes"]["hand_eye"] = {"T_flange_camera": T_flange_camera.tolist(), "source": he_source}
+    ctx.state.save()
     scans = crop_to_roi(gesture_scan(ctx, T_flange_camera), T_flange_camera, s.roi_min, s.roi_max)
 
     with ctx.step("reconstruct (merge + linear ICP)", total=len(scans)) as advance:
@@ -258,9 +366,20 @@ def run(ctx) -> dict:
             ctx.write_text(name, text)
             written.append(name)
     ctx.figures["programs"] = written
+    refused: SafetyError | None = None
     if s.execute:
-        execute(ctx, path, s.weld_speed, s.approach_distance)
+        try:
+            execute(ctx, path, s.weld_speed, s.approach_distance)
+            ctx.figures["execute"] = {"status": "done", "dry_run": bool(ctx.profile.cell.dry_run)}
+        except SafetyError as e:  # reported after the report is written: nothing was sent
+            ctx.figures["execute"] = {"status": "refused", "reason": e.message}
+            refused = e
     if ctx.profile.output.report:
         with ctx.step("report"):
             write_report(ctx, scans, rec, clean, extraction, path, gt)
+            if refused is not None:
+                with ctx.path("summary.txt").open("a") as f:
+                    f.write(f"\nEXECUTION REFUSED by the safety gate: {refused.message}\n")
+    if refused is not None:
+        raise refused
     return {"seams": len(path.seams), "captures": len(scans)}

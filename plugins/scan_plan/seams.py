@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+from scipy.signal import savgol_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spanning_tree
 from scipy.spatial import cKDTree
@@ -342,13 +343,6 @@ def _mst_diameter(mst, nodes: np.ndarray) -> np.ndarray:
     return np.array(path[::-1])
 
 
-def _smooth(X: np.ndarray, window: int, closed: bool) -> np.ndarray:
-    if window <= 1 or len(X) < 3:
-        return X
-    window = min(window, len(X) if closed else max(1, len(X) // 2 * 2 - 1))
-    return uniform_filter1d(X, size=window, axis=0, mode="wrap" if closed else "nearest")
-
-
 def _resample(X: np.ndarray, A: np.ndarray, spacing: float, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     if closed:
         X = np.vstack([X, X[:1]])
@@ -394,14 +388,21 @@ def fit_two_planes(
 
 
 def _refine_on_sides(
-    P: np.ndarray, N: np.ndarray, tree: cKDTree, X: np.ndarray, radius: float, min_crease_angle: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    radius: float,
+    min_crease_angle: float,
+    k: int = 256,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Snap seam nodes onto the intersection line of the two side planes fitted around them.
 
+    The planes are fitted to the (at most ``k`` nearest) cloud points within ``radius`` of each node.
     Returns the moved nodes, the approach ``-(n_a + n_b)/|.|`` of the fitted planes, a mask of the
     nodes where the fit was usable (both sides populated, crease angle large enough) and the angle
     between the two plane normals (pi minus the included angle of the joint)."""
-    idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, 48)
+    idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, k)
     na, da, nbv, db, ca, cb = fit_two_planes(P[idx], valid, na, nbv, in_a)
     ok = (ca >= 3) & (cb >= 3)
     ok &= np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1, 1)) >= min_crease_angle
@@ -453,6 +454,228 @@ def _orient(X: np.ndarray, A: np.ndarray, closed: bool) -> tuple[np.ndarray, np.
     return (X[::-1].copy(), A[::-1].copy()) if flip else (X, A)
 
 
+@dataclass
+class _Piece:
+    """An ordered run of seam nodes (one cluster of weldable points, or several bridged ones)."""
+
+    X: np.ndarray  # (K, 3) nodes along the run
+    A: np.ndarray  # (K, 3) unit approach directions
+    closed: bool
+    labels: np.ndarray  # (6,) counts of the point classes behind the run
+    ok: np.ndarray | None = None  # (K,) nodes where two side planes were fitted (after refinement)
+    crease: np.ndarray | None = None  # (K,) angle between the fitted side-plane normals (rad)
+
+
+def _cluster_piece(
+    X: np.ndarray, A: np.ndarray, nodes: np.ndarray, mst, eps: float, spacing: float, labels: np.ndarray
+) -> _Piece | None:
+    """Order one cluster along its MST diameter and average its points in bins of ``spacing``."""
+    path = _mst_diameter(mst, nodes)
+    if len(path) < 3:
+        return None
+    B = X[path]
+    s_path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(B, axis=0), axis=1))])
+    L_path = s_path[-1]
+    gap = float(np.linalg.norm(B[-1] - B[0]))
+    closed = gap <= 2.0 * eps and L_path > 6.0 * eps
+    _, near = cKDTree(B).query(X[nodes])  # arclength of every point = that of its nearest backbone node
+    s = s_path[near]
+    nbins = max(int(np.ceil(((L_path + gap) if closed else L_path) / spacing)), 1)
+    b = np.minimum((s / spacing).astype(int), nbins - 1)
+    cnt = np.bincount(b, minlength=nbins)
+    occ = cnt > 0
+    Xn, An = X[nodes], A[nodes]
+    Xs = np.stack([np.bincount(b, weights=Xn[:, d], minlength=nbins) for d in range(3)], 1)[occ]
+    As = np.stack([np.bincount(b, weights=An[:, d], minlength=nbins) for d in range(3)], 1)[occ]
+    if len(Xs) < 3:
+        return None
+    lab = np.bincount(labels[nodes].astype(int), minlength=6)
+    return _Piece(Xs / cnt[occ][:, None], _unit(As), bool(closed), lab)
+
+
+def _end_directions(X: np.ndarray, spacing: float, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Outward unit directions at the start and the end of an ordered run: principal axis of the
+    nodes within ``length`` of each end, pointing out of the run."""
+    k = int(np.clip(round(length / spacing), 1, len(X) - 1))
+    out = []
+    for Q, chord in ((X[: k + 1], X[0] - X[k]), (X[-1 - k :], X[-1] - X[-1 - k])):
+        u = np.linalg.svd(Q - Q.mean(axis=0), full_matrices=False)[2][0]
+        out.append(u if float(u @ chord) >= 0 else -u)
+    return out[0], out[1]
+
+
+def _gap_nodes(a: np.ndarray, b: np.ndarray, Aa: np.ndarray, Ab: np.ndarray, spacing: float):
+    """Nodes strictly between ``a`` and ``b`` at about ``spacing`` (approach interpolated linearly)."""
+    n = int(np.floor(np.linalg.norm(b - a) / spacing)) - 1
+    if n <= 0:
+        return np.empty((0, 3)), np.empty((0, 3))
+    f = np.arange(1, n + 1)[:, None] / (n + 1.0)
+    return a + f * (b - a), _unit(Aa + f * (Ab - Aa))
+
+
+def bridge_pieces(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    pieces: list[_Piece],
+    *,
+    max_gap: float,
+    max_angle: float,
+    spacing: float,
+    side_radius: float,
+    min_crease_angle: float,
+    max_approach_angle: float = np.deg2rad(45.0),
+    min_support: float = 0.5,
+) -> list[_Piece]:
+    """Join open pieces whose ends are close and whose directions agree (gap bridging).
+
+    Two piece ends are linked when they are at most ``max_gap`` apart, their outward directions (chords
+    over ~10 mm) are anti-parallel within ``max_angle``, the gap runs along both directions (for gaps
+    longer than two nodes) within ``max_angle``, their approach directions agree within
+    ``max_approach_angle``, and the joint is really there in the gap: at least ``min_support`` of the
+    nodes interpolated across it show two side planes (:func:`_refine_on_sides`). Links are accepted
+    greedily, shortest gap first, each end at most once and never closing a cycle between different
+    pieces; a chain whose own two ends then satisfy the same test is closed into a loop.
+    """
+    open_ids = [i for i, p in enumerate(pieces) if not p.closed]
+    out = [p for p in pieces if p.closed]
+    if not open_ids:
+        return out
+    tan_len = max(0.01, 3 * spacing)
+    E, D, Ae = [], [], []
+    for i in open_ids:
+        p = pieces[i]
+        d0, d1 = _end_directions(p.X, spacing, tan_len)
+        m = min(len(p.X), 5)
+        E += [p.X[0], p.X[-1]]
+        D += [d0, d1]
+        Ae += [_unit(p.A[:m].mean(0)), _unit(p.A[-m:].mean(0))]
+    E, D, Ae = np.array(E), np.array(D), np.array(Ae)
+    cos_t, cos_a = np.cos(max_angle), np.cos(max_approach_angle)
+
+    def verified(a: np.ndarray, b: np.ndarray, Aa: np.ndarray, Ab: np.ndarray) -> bool:
+        Xg, _ = _gap_nodes(a, b, Aa, Ab, spacing)
+        if len(Xg) == 0:
+            return True
+        return float(_refine_on_sides(P, N, tree, Xg, side_radius, min_crease_angle)[2].mean()) >= min_support
+
+    def compatible(ea: int, eb: int, a: np.ndarray, b: np.ndarray, da: np.ndarray, db: np.ndarray) -> bool:
+        g = b - a
+        dist = float(np.linalg.norm(g))
+        if dist > max_gap or -float(da @ db) < cos_t or float(Ae[ea] @ Ae[eb]) < cos_a:
+            return False
+        if dist > 2.0 * spacing:
+            u = g / dist
+            if float(da @ u) < cos_t or -float(db @ u) < cos_t:
+                return False
+        return True
+
+    pairs = cKDTree(E).query_pairs(max_gap, output_type="ndarray")
+    pairs = pairs[pairs[:, 0] // 2 != pairs[:, 1] // 2]
+    gaps = np.linalg.norm(E[pairs[:, 1]] - E[pairs[:, 0]], axis=1)
+    link = np.full(len(E), -1)
+    parent = list(range(len(open_ids)))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for k in np.argsort(gaps):
+        ea, eb = int(pairs[k, 0]), int(pairs[k, 1])
+        if link[ea] >= 0 or link[eb] >= 0 or find(ea // 2) == find(eb // 2):
+            continue
+        if not compatible(ea, eb, E[ea], E[eb], D[ea], D[eb]):
+            continue
+        if not verified(E[ea], E[eb], Ae[ea], Ae[eb]):
+            continue
+        link[ea], link[eb] = eb, ea
+        parent[find(ea // 2)] = find(eb // 2)
+
+    seen = np.zeros(len(open_ids), dtype=bool)
+    for start in range(len(open_ids)):
+        if seen[start] or (link[2 * start] >= 0 and link[2 * start + 1] >= 0):
+            continue
+        cur, entry = start, (0 if link[2 * start] < 0 else 1)
+        Xs, As, oks, crs, lab = [], [], [], [], np.zeros(6, dtype=np.int64)
+        while True:
+            seen[cur] = True
+            p = pieces[open_ids[cur]]
+            okp = p.ok if p.ok is not None else np.ones(len(p.X), dtype=bool)
+            crp = p.crease if p.crease is not None else np.zeros(len(p.X))
+            sl = slice(None) if entry == 0 else slice(None, None, -1)
+            Xc, Ac = p.X[sl], p.A[sl]
+            if Xs:
+                Xg, Ag = _gap_nodes(Xs[-1][-1], Xc[0], As[-1][-1], Ac[0], spacing)
+                if len(Xg):
+                    Xg, Af, okg, crg = _refine_on_sides(P, N, tree, Xg, side_radius, min_crease_angle)
+                    Xs.append(Xg)
+                    As.append(np.where(okg[:, None], Af, Ag))
+                    oks.append(okg)
+                    crs.append(crg)
+            Xs.append(Xc)
+            As.append(Ac)
+            oks.append(okp[sl])
+            crs.append(crp[sl])
+            lab += p.labels
+            nxt = link[2 * cur + 1 - entry]
+            if nxt < 0:
+                break
+            cur, entry = int(nxt) // 2, int(nxt) % 2
+        X, A, ok, crease = np.vstack(Xs), np.vstack(As), np.concatenate(oks), np.concatenate(crs)
+        closed = False
+        L = float(np.linalg.norm(np.diff(X, axis=0), axis=1).sum())
+        if len(X) >= 6 and L > 4.0 * max_gap:
+            d0, d1 = _end_directions(X, spacing, tan_len)
+            a0, a1 = _unit(A[:5].mean(0)), _unit(A[-5:].mean(0))
+            Ae_save = Ae
+            Ae = np.vstack([Ae_save, a1, a0])  # compatible() looks approach up by end index
+            n = len(Ae)
+            if compatible(n - 2, n - 1, X[-1], X[0], d1, d0) and verified(X[-1], X[0], a1, a0):
+                closed = True
+                Xg, Ag = _gap_nodes(X[-1], X[0], A[-1], A[0], spacing)
+                if len(Xg):
+                    Xg, Af, okg, crg = _refine_on_sides(P, N, tree, Xg, side_radius, min_crease_angle)
+                    X, A = np.vstack([X, Xg]), np.vstack([A, np.where(okg[:, None], Af, Ag)])
+                    ok, crease = np.concatenate([ok, okg]), np.concatenate([crease, crg])
+            Ae = Ae_save
+        out.append(_Piece(X, A, closed, lab, ok, crease))
+    return out
+
+
+def _smooth_positions(X: np.ndarray, window: int, closed: bool) -> np.ndarray:
+    """Savitzky-Golay (quadratic) smoothing over ``window`` nodes: no shrinkage on curved seams."""
+    n = len(X)
+    w = min(int(window) | 1, n if closed else n - (1 - n % 2))
+    if w < 5:
+        return X
+    if closed and w > n:
+        w = n - (1 - n % 2)
+    return savgol_filter(X, w, 2, axis=0, mode="wrap" if closed else "interp")
+
+
+def _smooth_approach(A: np.ndarray, ok: np.ndarray, window: int, closed: bool) -> np.ndarray:
+    """Robust smoothing of the approach directions along a seam.
+
+    A weighted moving average over ``window`` nodes (weight 0 where the side-plane fit failed) gives a
+    reference; nodes further than 3x the median deviation (at least 2 deg) from it are dropped, the
+    average is taken again, and a quadratic Savitzky-Golay pass removes the remaining ripple."""
+    if len(A) < 3:
+        return _unit(A)
+    mode = "wrap" if closed else "nearest"
+    w = np.where(ok, 1.0, 1e-6)
+    size = max(1, min(int(window), len(A)))
+    for _ in range(2):
+        num = uniform_filter1d(A * w[:, None], size=size, axis=0, mode=mode)
+        den = uniform_filter1d(w, size=size, mode=mode)
+        ref = _unit(num / np.maximum(den, 1e-12)[:, None])
+        dev = np.arccos(np.clip(np.einsum("ij,ij->i", A, ref), -1.0, 1.0))
+        lim = max(3.0 * float(np.median(dev[ok])) if ok.any() else 0.0, np.deg2rad(2.0))
+        w = np.where(ok & (dev <= lim), 1.0, 1e-6)
+    return _unit(_smooth_positions(ref, window, closed))
+
+
 def chain_seams(
     P: np.ndarray,
     N: np.ndarray,
@@ -472,15 +695,21 @@ def chain_seams(
     max_approach_angle: float = np.deg2rad(60.0),
     min_fit_fraction: float = 0.6,
     refine: bool = True,
+    max_gap: float = 0.03,
+    max_gap_angle: float = np.deg2rad(20.0),
+    smooth_length: float = 0.02,
 ) -> list[SeamPolyline]:
-    """Cluster the weldable points and turn each cluster into an ordered, resampled polyline.
+    """Cluster the weldable points and turn the clusters into ordered, resampled polylines.
 
     Points are linked within ``eps`` when their approach directions differ by less than
     ``max_approach_angle``; each connected component is ordered along the longest path of its
-    minimum spanning tree (closed when the path's ends are within ``2 eps``), binned at ``spacing``,
-    snapped onto the fitted side planes (``refine``), smoothed over ``smooth_window`` nodes and
-    resampled. Components where fewer than ``min_fit_fraction`` of the nodes show two distinct side
-    planes are dropped (noise on a flat surface), and open seams are trimmed to the fitted nodes.
+    minimum spanning tree (closed when the path's ends are within ``2 eps``) and binned at ``spacing``.
+    Pieces whose ends are close (``max_gap``) and collinear (``max_gap_angle``) are chained across the
+    gap (:func:`bridge_pieces`). Each chain is snapped onto the side planes fitted within
+    ``side_radius`` (``refine``), resampled at ``spacing``, smoothed (quadratic Savitzky-Golay over
+    ``smooth_length`` or ``smooth_window`` nodes, whichever is longer; robust for the approach).
+    Chains where fewer than ``min_fit_fraction`` of the nodes show two distinct side planes are dropped
+    (noise on a flat surface), and open seams are trimmed to the fitted nodes.
     """
     M = len(weld_idx)
     if M < 3:
@@ -495,42 +724,18 @@ def chain_seams(
     G = coo_matrix((w, (i, j)), shape=(M, M)).tocsr()
     n_comp, comp = connected_components(G, directed=False)
     mst = minimum_spanning_tree(G + G.T)
-    seams: list[SeamPolyline] = []
     sizes = np.bincount(comp, minlength=n_comp)
-    for c_id in np.argsort(-sizes):
-        nodes = np.flatnonzero(comp == c_id)
-        if len(nodes) < 5:
-            continue
-        path = _mst_diameter(mst, nodes)
-        if len(path) < 3:
-            continue
-        B = X[path]
-        seg = np.linalg.norm(np.diff(B, axis=0), axis=1)
-        s_path = np.concatenate([[0.0], np.cumsum(seg)])
-        L_path = s_path[-1]
-        gap = float(np.linalg.norm(B[-1] - B[0]))
-        closed = gap <= 2.0 * eps and L_path > 6.0 * eps
-        # arclength parameter of every cluster point = that of its nearest backbone node
-        _, near = cKDTree(B).query(X[nodes], workers=2)
-        s = s_path[near]
-        period = L_path + gap if closed else None
-        nbins = max(int(np.ceil((period if closed else L_path) / spacing)), 1)
-        b = np.minimum((s / spacing).astype(int), nbins - 1)
-        cnt = np.bincount(b, minlength=nbins)
-        occ = cnt > 0
-        Xn, An = X[nodes], approach[nodes]
-        Xs = np.stack([np.bincount(b, weights=Xn[:, d], minlength=nbins) for d in range(3)], 1)[occ]
-        As = np.stack([np.bincount(b, weights=An[:, d], minlength=nbins) for d in range(3)], 1)[occ]
-        Xs = Xs / cnt[occ][:, None]
-        As = _unit(As)
-        if len(Xs) < 3:
+    pieces = []
+    for c_id in np.flatnonzero(sizes >= 5)[np.argsort(-sizes[sizes >= 5])]:
+        piece = _cluster_piece(X, approach, np.flatnonzero(comp == c_id), mst, eps, spacing, weld_labels)
+        if piece is None:
             continue
         if refine:
-            Xs, A_fit, ok, crease = _refine_on_sides(P, N, tree, Xs, side_radius, min_crease_angle)
-            As[ok] = A_fit[ok]
+            Xs, A_fit, ok, crease = _refine_on_sides(P, N, tree, piece.X, side_radius, min_crease_angle)
             if ok.mean() < min_fit_fraction:  # no two distinct side planes along most of it: not a joint
                 continue
-            if not closed:  # trim ends where the two side planes could not be fitted
+            As = np.where(ok[:, None], A_fit, piece.A)
+            if not piece.closed:  # trim ends where the two side planes could not be fitted
                 good = np.flatnonzero(ok)
                 sl = slice(good[0], good[-1] + 1)
                 Xs, As, ok, crease = Xs[sl], As[sl], ok[sl], crease[sl]
@@ -538,12 +743,26 @@ def chain_seams(
                 Xs, As, ok, crease = Xs[sl], As[sl], ok[sl], crease[sl]
                 if len(Xs) < 3:
                     continue
-        Xs = _smooth(Xs, smooth_window, closed)
-        As = _unit(_smooth(As, smooth_window, closed))
-        if not closed:  # the smoothed ends can still fold back: cut them
-            sl = _trim_turning_ends(Xs)
-            Xs, As = Xs[sl], As[sl]
+            piece = _Piece(Xs, As, piece.closed, piece.labels, ok, crease)
+        pieces.append(piece)
+    if max_gap > 0 and refine:
+        pieces = bridge_pieces(
+            P, N, tree, pieces, max_gap=max_gap, max_angle=max_gap_angle, spacing=spacing,
+            side_radius=side_radius, min_crease_angle=min_crease_angle,
+        )
+    window = max(int(smooth_window), int(round(smooth_length / spacing)) | 1)
+    seams: list[SeamPolyline] = []
+    for piece in sorted(pieces, key=lambda p: -len(p.X)):
+        Xs, As, closed = piece.X, piece.A, piece.closed
+        ok = piece.ok if piece.ok is not None else np.ones(len(Xs), dtype=bool)
+        crease = piece.crease if piece.crease is not None else np.zeros(len(Xs))
+        As = _smooth_approach(As, ok, window, closed)
         Xr, Ar = _resample(Xs, As, spacing, closed)
+        Xr = _smooth_positions(Xr, window, closed)
+        Ar = _smooth_approach(Ar, np.ones(len(Ar), dtype=bool), window, closed)
+        if not closed:  # the smoothed ends can still fold back: cut them
+            sl = _trim_turning_ends(Xr)
+            Xr, Ar = Xr[sl], Ar[sl]
         ring = np.vstack([Xr, Xr[:1]]) if closed else Xr
         length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
         if length < min_length or len(Xr) < 2:
@@ -552,8 +771,7 @@ def chain_seams(
         if refine and ok.sum() >= 3:  # the included angle of the fitted side planes decides
             joint = "groove" if np.pi - np.median(crease[ok]) < groove_max_angle else "concave"
         else:
-            lab = np.bincount(weld_labels[nodes].astype(int), minlength=6)
-            joint = "groove" if lab[GROOVE] > lab[CONCAVE] else "concave"
+            joint = "groove" if piece.labels[GROOVE] > piece.labels[CONCAVE] else "concave"
         if joint not in joints:
             continue
         seams.append(SeamPolyline(len(seams), joint, Xr, Ar, bool(closed), length))
@@ -611,6 +829,9 @@ def extract_seams(
     min_seam_length: float = 0.01,
     smooth_window: int = 5,
     refine: bool = True,
+    fit_radius: float | None = None,
+    max_gap: float = 0.03,
+    smooth_length: float = 0.02,
 ) -> SeamExtraction:
     """Edge points (eqs. 11-17) and ordered weld seams of a cloud in metres.
 
@@ -628,6 +849,10 @@ def extract_seams(
             :func:`classify_edges`. class_radius_factor: side-fit radius as a multiple of r.
         cluster_eps: link distance of the clustering (default 2 r). spacing: seam resampling step
             (default r). min_seam_length: shorter seams are dropped (m). smooth_window: nodes.
+        fit_radius: radius (m) of the two-side-plane fits that snap the seam and give its approach
+            (default ``max(class_radius_factor * r, 6 mm)``: enough points for sub-degree planes).
+        max_gap: pieces of one seam whose ends are at most this far apart (m) and collinear are
+            chained across the gap (0 disables). smooth_length: smoothing window along the seam (m).
     """
     if m < 3:
         raise DataError(f"m must be >= 3, got {m}", "use m of about 10-20 neighbours")
@@ -639,6 +864,10 @@ def extract_seams(
     _positive(radius, "radius")
     _positive(sigma, "sigma")
     _positive(spacing, "spacing")
+    _positive(fit_radius, "fit_radius")
+    if not np.isfinite(max_gap) or max_gap < 0:
+        raise DataError(f"max_gap must be >= 0 m, got {max_gap}", "pass e.g. 0.03 (0 disables bridging)")
+    _positive(smooth_length, "smooth_length")
     P = _as_points(points, m)
     I, score, r, tree = edge_scores(
         P, m=m, radius=radius, radius_factor=radius_factor, k_max=k_max, sigma=sigma, floor=floor
@@ -672,13 +901,15 @@ def extract_seams(
             appr[keep],
             eps=cluster_eps or 2.0 * r,
             spacing=spacing or r,
-            side_radius=R,
+            side_radius=fit_radius or max(R, 0.006),
             min_length=min_seam_length,
             smooth_window=smooth_window,
             min_crease_angle=min_crease_angle,
             groove_max_angle=groove_max_angle,
             joints=joints,
             refine=refine,
+            max_gap=max_gap,
+            smooth_length=smooth_length,
         )
     params = dict(m=m, t=t, radius=r, sigma=sigma, floor=floor, min_intensity=min_intensity)
     return SeamExtraction(edge, score, I, labels, seams, r, params)

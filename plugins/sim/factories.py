@@ -6,6 +6,7 @@ import numpy as np
 
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim import devices as d
+from weldcell.hal.sim.flange import flange_for
 from weldcell.hal.sim.hands import load_script
 from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.world import SimWorld
@@ -34,7 +35,7 @@ def robot(settings, ctx) -> d.SimRobot:
         q_start = model.ik(T_from_rpy(settings.start_rpy, settings.start_xyz), model.home)
     return d.SimRobot(model, w, T_world_base=w.T_world(ctx.mount.parent) @ ctx.T_parent_device, name=ctx.role,
                       gate=SafetyGate(ctx.safety, model=model), motion=settings, dry_run=ctx.dry_run,
-                      q_start=q_start)
+                      q_start=q_start, flange=flange_for(model.name) if settings.flange_geometry else None)
 
 
 def camera(settings, ctx) -> d.SimDepthCamera:

@@ -24,6 +24,10 @@ class SimRobotSettings(RobotMotionSettings):
     start_rpy: tuple[Angle, Angle, Angle] = Field(
         (3.14159265, 0.0, 0.0), description="flange orientation to start at (with start_xyz) [rad]"
     )
+    flange_geometry: bool = Field(
+        True, description="put the ISO 9409-1 flange and the last link into the depth cameras' scene (they "
+        "move with the robot; hand-eye calibration scans them)"
+    )
 
 
 class SimCameraSettings(Settings):

@@ -43,7 +43,11 @@ def _undistorted_rays(K_key: tuple, dist_key: tuple, width: int, height: int, ss
     uu, vv = np.meshgrid(u, v)
     pts = np.stack([uu.ravel(), vv.ravel()], axis=1).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
-    und = cv2.undistortPoints(pts, K, np.array(dist_key), None, None, None, crit)
+    dist = np.array(dist_key)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x spells the iterative variant this way
+        und = cv2.undistortPointsIter(pts, K, dist, None, None, crit)
+    else:  # OpenCV 5: criteria is an argument of undistortPoints
+        und = cv2.undistortPoints(pts, K, dist, None, None, None, crit)
     return und.reshape(height * ss, width * ss, 2).astype(np.float32)
 
 

@@ -1,7 +1,7 @@
 """RobotConformance as it is meant to run, for robots.
 
 ``hal.robot.Robot.state()`` (the robot-state reading) shadows ``Device.state`` (the lifecycle property), so
-``RobotConformance``'s lifecycle checks (``device.state is State.X``) cannot pass for any robot. Until that is
+``RobotConformance``'s lifecycle checks (``device.lifecycle is State.X``) cannot pass for any robot. Until that is
 resolved in the shared files, this subclass runs the same three checks against the lifecycle state
 (``device._state``); every other check is the suite's own.
 """

@@ -56,7 +56,7 @@ class TestPhoXiGenTLConformance(DepthCameraConformance):
             break_device(d)
             with pytest.raises(DeviceError, match="no scan"):
                 d.capture()
-            assert d.state is State.ERROR and "no scan" in d.health().message
+            assert d.lifecycle is State.ERROR and "no scan" in d.health().message
             d._replug()
             d.recover()
             d.configure()
@@ -174,7 +174,7 @@ def test_file_mode_stops_without_loop():
         cam.capture()
         with pytest.raises(DeviceError, match="replayed"):
             cam.capture()
-        assert cam.state is State.ERROR
+        assert cam.lifecycle is State.ERROR
 
 
 @pytest.mark.parametrize("binary", [True, False])

@@ -62,7 +62,7 @@ def wait_disconnected(dev: URRobot) -> None:
 
 
 # hal.robot.Robot.state() (the robot-state reading) shadows the lifecycle property Device.state, so the
-# suite's ``device.state is State.X`` checks cannot pass for any robot until the HAL renames one of them.
+# suite's ``device.lifecycle is State.X`` checks cannot pass for any robot until the HAL renames one of them.
 _STATE_SHADOWED = callable(getattr(Robot, "state", None))
 _shadowed = pytest.mark.xfail(_STATE_SHADOWED, strict=True,
                               reason="HAL bug: Robot.state() shadows Device.state (reported to the lead)")
@@ -90,7 +90,7 @@ class TestURConformance(RobotConformance):
                 for _ in range(50):
                     d.state()
             h = d.health()
-            assert h.state is State.ERROR and not h.ok and "lost" in h.message
+            assert h.lifecycle is State.ERROR and not h.ok and "lost" in h.message
             d.recover()
             assert d.health().state is State.UNCONFIGURED
             d.configure()

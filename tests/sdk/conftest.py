@@ -16,6 +16,7 @@ REPO = Path(__file__).resolve().parents[2]
 def _load_module(name: str, path: Path):
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # pydantic resolves the postponed annotations through sys.modules
     spec.loader.exec_module(module)
     return module
 
@@ -37,7 +38,7 @@ def fixture_pm(sim_pm):
 
 @pytest.fixture
 def make_distribution(tmp_path, monkeypatch):
-    """Install a fake distribution into ``tmp_path``: modules + ``<name>-<version>.dist-info`` with entry points.
+    """Install a fake distribution in ``tmp_path``: modules + a ``<name>-<version>.dist-info`` folder.
 
     ``make_distribution(name, version, modules={module: source_or_path}, entry_points={group: {ep: value}})``
     writes real metadata that :mod:`importlib.metadata` finds once ``tmp_path`` is on ``sys.path``.
@@ -47,7 +48,9 @@ def make_distribution(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(site))
     created: list[str] = []
 
-    def _make(name: str, version: str, modules: dict[str, str | Path], entry_points: dict[str, dict[str, str]]):
+    def _make(
+        name: str, version: str, modules: dict[str, str | Path], entry_points: dict[str, dict[str, str]]
+    ):
         for mod, src in modules.items():
             target = site / f"{mod}.py"
             if isinstance(src, Path):

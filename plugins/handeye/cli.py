@@ -1,0 +1,268 @@
+"""``weldcell calibrate hand-eye DATA_DIR -o handeye.json``: hand-eye calibration of recorded data.
+
+DATA_DIR is a ``samples.json`` (``weldcell/handeye-samples@1``, e.g. a ``calibrate`` run folder) or
+one of the ancorasir layouts read directly: ``calib_toolbox/data/<date>-sample`` (calib_data.json +
+raw scans), ``paper_dda5a35/data/<robot>`` (point pairs) or ``Kinect_Result``. Raw scans are
+segmented with the ``handeye.flange`` stage (plane peeling included); a scan without a flange is
+skipped and listed. Exit codes are those of :mod:`weldcell.sdk.cli`.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import tomllib
+from pathlib import Path
+
+import click
+import numpy as np
+
+from weldcell.sdk.errors import DataError, UsageError
+
+LAYOUTS = ("auto", "weldcell", "ancorasir-sample", "ancorasir-pairs", "ancorasir-kinect")
+
+
+def detect_layout(path: Path) -> str:
+    """The layout of a data folder (or a samples.json file); UsageError naming what was looked for."""
+    if path.is_file() and path.suffix == ".json":
+        return "weldcell"
+    if not path.is_dir():
+        raise UsageError(f"{path} is not a folder or a samples.json file", "give the folder of the recorded data")
+    if (path / "samples.json").is_file():
+        return "weldcell"
+    if (path / "calib_data.json").is_file():
+        return "ancorasir-sample"
+    if (path / "p_camera_mat.npy").is_file() and (path / "p_robot_mat.npy").is_file():
+        return "ancorasir-pairs"
+    if (path / "readRobot.txt").is_file() and (path / "measureRobot.txt").is_file():
+        return "ancorasir-kinect"
+    raise UsageError(
+        f"{path}: no hand-eye data found (no samples.json, calib_data.json, p_camera_mat.npy or readRobot.txt)",
+        "point at a folder with samples.json (weldcell/handeye-samples@1) or an ancorasir layout; "
+        "--layout forces one",
+    )
+
+
+def _samples_json_with_units(path: Path, units: str) -> Path:
+    """A copy of ``samples.json`` declaring ``units`` (cloud/image paths made absolute)."""
+    doc = json.loads(path.read_text())
+    doc["units"] = units
+    for s in doc.get("samples", []):
+        for k in ("cloud", "image"):
+            if s.get(k):
+                s[k] = str((path.parent / s[k]).resolve())
+    tmp = Path(tempfile.mkdtemp(prefix="weldcell-he-")) / "samples.json"
+    tmp.write_text(json.dumps(doc))
+    return tmp
+
+
+def read_data(path: Path, layout: str = "auto", units: str | None = None):
+    """Samples of any supported layout as a :class:`~weldcell.plugins.handeye.samples_io.SampleSet`."""
+    from weldcell.plugins.handeye import samples_io as io
+
+    layout = detect_layout(path) if layout == "auto" else layout
+    if layout == "weldcell":
+        f = path if path.is_file() else path / "samples.json"
+        if not f.is_file():
+            raise UsageError(f"{f} not found", "give a folder with samples.json or the file itself")
+        if units is not None and json.loads(f.read_text()).get("units", "m") != units:
+            ss = io.read_samples(_samples_json_with_units(f, units))
+            ss.root = f.parent
+            ss.notes.append(f"lengths read as {units} (--units)")
+            return ss
+        return io.read_samples(f)
+    if layout == "ancorasir-sample":
+        return io.read_ancorasir_sample(path)
+    if layout == "ancorasir-pairs":
+        return io.read_ancorasir_point_pairs(path, units=units or "mm")
+    if layout == "ancorasir-kinect":
+        return io.read_ancorasir_kinect(path)
+    raise UsageError(f"unknown layout '{layout}'", f"use one of {', '.join(LAYOUTS)}")
+
+
+def _stage_settings(settings_file: Path | None, overrides: dict):
+    from weldcell.plugins.handeye.stages import FlangeSettings
+
+    values: dict = {}
+    if settings_file is not None:
+        if not settings_file.is_file():
+            raise UsageError(f"settings file not found: {settings_file}", "check the path")
+        text = settings_file.read_text()
+        values = tomllib.loads(text) if settings_file.suffix == ".toml" else json.loads(text)
+        values = values.get("stages", {}).get("handeye", {}).get("settings", values)
+        values = {k: v for k, v in values.items() if k in FlangeSettings.model_fields}
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    from pydantic import ValidationError
+
+    try:
+        return FlangeSettings.model_validate(values)
+    except ValidationError as e:
+        first = e.errors()[0]
+        raise UsageError(f"flange settings: {'.'.join(map(str, first['loc']))}: {first['msg']}",
+                         "fix the value (see docs/methods/hand-eye.md)") from None
+
+
+def measure_scans(ss, stage, need_pose: bool) -> list[str]:
+    """Flange centres (and poses) of samples that have a scan but no ``p_cam``; samples whose scan has
+    no flange get ``p_cam = None`` and are dropped. Returns one note per dropped scan."""
+    from weldcell.sdk.cloud import read_cloud
+
+    notes, keep = [], []
+    for i, smp in enumerate(ss.samples):
+        needs = smp.cloud is not None and (smp.p_cam is None or (need_pose and smp.T_cam_target is None))
+        if not needs:
+            keep.append(smp)
+            continue
+        units = smp.meta.get("cloud_units", "m")
+        name = Path(smp.cloud).name if isinstance(smp.cloud, str | Path) else f"#{i}"
+        try:
+            if isinstance(smp.cloud, str | Path):
+                pts = read_cloud(smp.cloud, units=units, frame="camera").points
+            else:
+                pts = np.asarray(smp.cloud, float)
+            m = stage.measure(pts, seed=i)
+        except DataError as e:
+            notes.append(f"scan {i} ({name}): {e.message}")
+            continue
+        smp.p_cam = m.p_cam
+        smp.meta["flange"] = {"radius_mm": round(m.report["radius"] * 1e3, 3), "support": m.report["support"]}
+        if need_pose:
+            smp.T_cam_target = stage.measure_pose(m)
+        keep.append(smp)
+    if notes and len(keep) < 4:
+        raise DataError(
+            f"no flange found in {len(notes)} of {len(ss.samples)} scans ({notes[0]}); {len(keep)} usable, "
+            "at least 4 needed",
+            "check the scans show the flange face (and their units, --units), the flange size (--flange-d1) "
+            "or the pass-through box (--settings)",
+        )
+    ss.samples = keep
+    return notes
+
+
+def _feature(value: str | None):
+    if value is None or value in ("tcp", "estimate"):
+        return value
+    try:
+        xyz = [float(v) * 1e-3 for v in value.split(",")]
+    except ValueError:
+        xyz = []
+    if len(xyz) != 3:
+        raise UsageError(f"--feature '{value}' is not tcp, estimate or x,y,z", "e.g. --feature 0,0,12.5 (mm)")
+    return xyz
+
+
+def _cli_fix(e: DataError) -> DataError:
+    """The library's fixes speak Python; say the command-line option instead."""
+    fix = (e.fix or "").replace("pass allow_coplanar=True", "pass --allow-coplanar")
+    fix = fix.replace("declare units 'mm'", "pass --units mm")
+    return DataError(e.message, fix)
+
+
+@click.group("calibrate")
+def calibrate_group() -> None:
+    """Calibrate a cell from recorded data (hand-eye)."""
+
+
+@calibrate_group.command("hand-eye")
+@click.argument("data_dir", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("handeye.json"), show_default=True,
+              help="Where to write the weldcell/hand-eye@1 result.")
+@click.option("--method", default="flange", show_default=True,
+              type=click.Choice(["flange", "flange-svd", "flange-iterative", "tsai", "park", "horaud", "andreff",
+                                 "daniilidis", "shah", "li"]), help="Solver (flange* = paper 003).")
+@click.option("--config", "config", type=click.Choice(["eye-on-base", "eye-in-hand", "eye-on-arm",
+                                                       "co-manipulation"]),
+              help="Hand-eye configuration (default: the data's).")
+@click.option("--units", type=click.Choice(["mm", "m"]), help="Units of the data's lengths (default: the file's).")
+@click.option("--layout", type=click.Choice(LAYOUTS), default="auto", show_default=True, help="Force a data layout.")
+@click.option("--flange-model", type=click.Path(path_type=Path), help="Flange CAD/cloud for the ICP metric.")
+@click.option("--flange-d1", type=click.Choice(["31.5", "40", "50", "63", "80", "100"]),
+              help="ISO 9409-1 flange size (pitch circle, mm); default 50.")
+@click.option("--verifier", type=click.Choice(["consensus", "icp"]), help="Algorithm 1's error metric.")
+@click.option("--verify-sample", type=int, help="Sample whose scan is the ICP verification cloud (with "
+              "--verifier icp; default the first with a scan). It is left out of the fit.")
+@click.option("--feature", help="The circle centre in the flange frame: tcp, estimate, or x,y,z in mm.")
+@click.option("--inlier-threshold", type=float, help="Inlier residual in mm (default: robust).")
+@click.option("--allow-coplanar", is_flag=True, help="Accept flange positions on one plane (warned).")
+@click.option("--settings", "settings_file", type=click.Path(path_type=Path),
+              help="TOML/JSON with handeye.flange settings (or a profile: its [stages.handeye.settings]).")
+@click.option("--report", "report_dir", type=click.Path(path_type=Path), help="Write summary and plots here.")
+@click.option("--remeasure", is_flag=True, help="Measure the flange centres from the scans even when the data "
+              "stores them.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only the result file name.")
+def hand_eye(data_dir: Path, output: Path, method: str, config: str | None, units: str | None, layout: str,
+             flange_model: Path | None, flange_d1: str | None, verifier: str | None, verify_sample: int | None,
+             feature: str | None, inlier_threshold: float | None, allow_coplanar: bool,
+             settings_file: Path | None, report_dir: Path | None, remeasure: bool, quiet: bool) -> None:
+    """Hand-eye calibration of DATA_DIR; writes the transform to -o and prints a summary."""
+    from weldcell.plugins.handeye.report import summary_lines, write_offline_report
+    from weldcell.plugins.handeye.samples_io import write_result
+    from weldcell.plugins.handeye.stages import FlangeHandEye
+    from weldcell.sdk.cli import out
+
+    if flange_model is not None and not flange_model.is_file():
+        raise UsageError(f"flange model not found: {flange_model}", "give an STL/PCD/PLY file of the flange")
+    s = _stage_settings(settings_file, {
+        "flange_model": str(flange_model) if flange_model else None,
+        "flange_d1": float(flange_d1) if flange_d1 else None, "verifier": verifier,
+        "inlier_threshold": None if inlier_threshold is None else inlier_threshold * 1e-3,
+        "allow_coplanar": allow_coplanar or None,
+    })
+    stage = FlangeHandEye(s)
+    ss = read_data(data_dir, layout, units)
+    notes = list(ss.notes)
+    if remeasure:
+        n = sum(smp.cloud is not None for smp in ss.samples)
+        if n == 0:
+            raise UsageError(f"{data_dir}: --remeasure, but no sample has a scan", "drop --remeasure")
+        for smp in ss.samples:
+            if smp.cloud is not None:
+                smp.p_cam = None
+        notes.append(f"flange centres measured from {n} scans (--remeasure)")
+    try:
+        notes += measure_scans(ss, stage, need_pose=not method.startswith("flange"))
+        verification = None
+        if method == "flange-iterative" and s.verifier == "icp":
+            verification = _verification_sample(ss, stage, verify_sample)
+            notes.append(f"sample {verification[2]} is the ICP verification scan (left out of the fit)")
+            verification = verification[:2]
+        extra: dict = {}
+        f = _feature(feature)
+        if f is not None:
+            extra["feature"] = f
+        result = stage.solve(ss.samples, config or ss.config, verification=verification, method=method, **extra)
+    except DataError as e:
+        raise _cli_fix(e) from None
+    result.warnings += [f"skipped {n}" for n in notes if n.startswith("scan ")]
+    result.metrics["sample_index"] = [int(smp.meta.get("index", i)) for i, smp in enumerate(ss.samples)]
+    result.metrics["source"] = {"data": str(data_dir), "layout": layout if layout != "auto" else
+                                detect_layout(data_dir), "notes": notes}
+    write_result(output, result)
+    lines = summary_lines(result)
+    lines += [f"note            {n}" for n in notes]
+    if report_dir is not None:
+        written = write_offline_report(report_dir, result, lines)
+        lines.append(f"report          {report_dir}/ ({', '.join(written)})")
+    if not quiet:
+        out.print("\n".join(lines), markup=False)
+    out.print(f"wrote {output}", markup=False)
+
+
+def _verification_sample(ss, stage, index: int | None):
+    """(face cloud, T_base_flange, index) of the verification scan; it is removed from ``ss``."""
+    from weldcell.sdk.cloud import read_cloud
+
+    cands = [i for i, smp in enumerate(ss.samples) if smp.cloud is not None and smp.T_base_flange is not None]
+    if index is None:
+        if not cands:
+            raise UsageError("the ICP verifier needs a sample with a scan and a robot pose",
+                             "use --verifier consensus for point-pair data")
+        index = cands[0]
+    if index not in cands:
+        raise UsageError(f"--verify-sample {index} has no scan with a robot pose", f"use one of {cands}")
+    smp = ss.samples.pop(index)
+    pts = smp.cloud if not isinstance(smp.cloud, str | Path) else read_cloud(
+        smp.cloud, units=smp.meta.get("cloud_units", "m"), frame="camera").points
+    m = stage.measure(pts, seed=index)
+    return m.face, smp.T_base_flange, int(smp.meta.get("index", index))
