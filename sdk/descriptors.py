@@ -140,6 +140,8 @@ class JobSpec(Descriptor):
     run: Callable[[Any], dict] | None = None
     devices: tuple[DeviceRole, ...] = ()
     stages: tuple[StageRole, ...] = ()
+    any_devices: bool = False
+    """Accept any device roles (a job that works on whatever the cell has, like ``check-devices``)."""
     category: ClassVar[str] = "job"
 
     def __post_init__(self) -> None:

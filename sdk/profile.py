@@ -278,6 +278,15 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
     roles = {r.role: r for r in job.devices}
     for role, entry in p.devices.items():
         key = ("devices", role)
+        if role not in roles and job.any_devices:
+            try:
+                spec = registry.get("device", entry.plugin)
+                spec.check_available()
+            except WeldcellError as e:
+                problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
+                continue
+            resolved["devices"][role] = (spec, settings_for(spec, entry.settings, (*key, "settings")))
+            continue
         if role not in roles:
             problems.append((key, f"job '{job.name}' uses no device '{role}'; its devices are: "
                                   f"{', '.join(roles) or '(none)'}"))

@@ -312,6 +312,7 @@ class PosedScans:
     names: list[str]
     T_flange_camera: np.ndarray | None
     layout: str
+    roi: tuple[Any, Any] = (None, None)
 
 
 def _pose(value: Any, name: str, where: Path, scale: float) -> np.ndarray:
@@ -362,11 +363,13 @@ def load_posed_scans(source: Path) -> PosedScans:
         if he:
             T_fc = _pose(he.get("T_flange_camera"), "hand-eye", index, 1.0)
         key = "file"
+        roi = _run_roi(folder)
     else:
         if doc.get("schema") != SCANS_SCHEMA:
             raise DataError(f"{index}: schema is {doc.get('schema')!r}, expected {SCANS_SCHEMA!r}",
                             f'add "schema": "{SCANS_SCHEMA}"')
         layout, units, records, key = "scans.json", doc.get("units", "m"), doc.get("scans"), "cloud"
+        roi = (doc.get("roi_min"), doc.get("roi_max"))
         if units not in UNIT_SCALE:
             raise DataError(f"{index}: unknown units {units!r}", f"use one of {', '.join(UNIT_SCALE)}")
         if not isinstance(records, list):
@@ -386,7 +389,18 @@ def load_posed_scans(source: Path) -> PosedScans:
         stamp = rec.get("stamp", float(i))
         scans.append(PosedScan(cloud, T, float(stamp)))
         names.append(str(rec[key]))
-    return PosedScans(scans, names, T_fc, layout)
+    if units != "m":
+        roi = tuple(None if r is None else [v * scale for v in r] for r in roi)
+    return PosedScans(scans, names, T_fc, layout, roi)
+
+
+def _run_roi(folder: Path) -> tuple[Any, Any]:
+    """The region of interest the run's job used (from its result.json), or (None, None)."""
+    f = folder / "result.json"
+    if not f.is_file():
+        return None, None
+    job = ((read_json(f).get("provenance") or {}).get("settings") or {}).get("job") or {}
+    return job.get("roi_min"), job.get("roi_max")
 
 
 def hand_eye_option(
@@ -416,12 +430,15 @@ def hand_eye_option(
               help="Hand-eye result (T_flange_camera), e.g. from `weldcell calibrate hand-eye`.")
 @click.option("--mount",
               help="Nominal camera mount on the flange: x,y,z,roll,pitch,yaw (m, rad, or with units).")
+@click.option("--roi-min", help="Keep only points above this corner x,y,z of the base frame (default: the run's).")
+@click.option("--roi-max", help="Keep only points below this corner x,y,z of the base frame (default: the run's).")
 @click.option("--profile", type=click.Path(path_type=Path),
               help="Take the reconstruct stage plugin and settings from this profile's [stages].")
 @click.option("--set", "sets", multiple=True, metavar="reconstruct.KEY=VALUE",
               help="Set a stage setting, e.g. reconstruct.voxel='2 mm'. Repeatable.")
 def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mount: str | None,
-                        profile: Path | None, sets: tuple[str, ...]) -> None:
+                        roi_min: str | None, roi_max: str | None, profile: Path | None,
+                        sets: tuple[str, ...]) -> None:
     """Merge posed scans into one model in the robot base frame, refined by linear ICP.
 
     SCANS_DIR is a scan-and-plan run folder (state.json) or a folder with a scans.json
@@ -432,17 +449,29 @@ def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mo
     data = load_posed_scans(scans_dir)
     T_fc, source = hand_eye_option(hand_eye, mount, data.T_flange_camera)
     spec, settings = stages["reconstruct"]
+    lo = parse_floats(roi_min, 3, ("length",) * 3, "--roi-min") if roi_min else data.roi[0]
+    hi = parse_floats(roi_max, 3, ("length",) * 3, "--roi-max") if roi_max else data.roi[1]
     click.echo(f"scans           {len(data.scans)} from {scans_dir} ({data.layout}); hand-eye: {source}")
+    views, names = data.scans, data.names
+    if lo is not None or hi is not None:
+        from weldcell.plugins.scan_plan.job import crop_to_roi
+
+        views = crop_to_roi(data.scans, T_fc, lo, hi)
+        kept = {id(v.T_base_flange) for v in views}
+        names = [n for n, v in zip(data.names, data.scans, strict=True) if id(v.T_base_flange) in kept]
+        fmt = lambda c: "-" if c is None else "(" + ", ".join(f"{v * 1000:.0f}" for v in c) + ") mm"  # noqa: E731
+        click.echo(f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "
+                   "views have points in it")
     t0 = time.perf_counter()
-    rec = spec.factory(settings)(data.scans, T_fc)
+    rec = spec.factory(settings)(views, T_fc)
     dt = time.perf_counter() - t0
     write_cloud(output, rec.cloud)
     click.echo(f"{'view':>4}  {'file':<16} {'points':>7}  {'fitness before':>14}  {'after':>6}  "
                f"{'correction':>17}  kept")
-    for i, name in enumerate(data.names):
+    for i, name in enumerate(names):
         C = rec.corrections[i]
         corr = f"{np.linalg.norm(C[:3, 3]) * 1000:6.2f} mm {np.degrees(rotation_angle(C[:3, :3])):5.2f} deg"
-        click.echo(f"{i:>4}  {name:<16} {len(data.scans[i].cloud):>7}  {rec.fitness_before[i]:>14.3f}  "
+        click.echo(f"{i:>4}  {name:<16} {len(views[i].cloud):>7}  {rec.fitness_before[i]:>14.3f}  "
                    f"{rec.fitness[i]:>6.3f}  {corr:>17}  {'yes' if rec.accepted[i] else 'no'}")
     click.echo(f"model           {len(rec.cloud)} points -> {output}  ({dt:.2f} s, {spec.name})")
     write_json(output.with_suffix(".json"), {
@@ -452,6 +481,6 @@ def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mo
         "views": [{"file": n, "fitness_before": rec.fitness_before[i], "fitness": rec.fitness[i],
                    "accepted": bool(rec.accepted[i]),
                    "T_base_camera": np.asarray(rec.T_base_camera[i]).tolist()}
-                  for i, n in enumerate(data.names)],
+                  for i, n in enumerate(names)],
         "runtime_s": round(dt, 4),
     })

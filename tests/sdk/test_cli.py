@@ -282,3 +282,34 @@ def test_plugins_reports_conflicts_with_exit_4(runner, weldcell_pm, wide_console
     )
     data = json.loads(invoke(runner, "plugins", "--json").output)
     assert len(data["conflicts"]) == 1
+
+
+def test_failed_run_keeps_its_captures_and_resumes(runner, fixture_pm, fixtures_dir, tmp_path, wide_console):
+    profile = tmp_path / "failing.toml"
+    profile.write_text(
+        (fixtures_dir / "fixture-job-sim.toml")
+        .read_text()
+        .replace('standoff = "15 mm"', 'label = "fail-after-capture"')
+    )
+    runs = tmp_path / "runs"
+    r = runner.invoke(main, ["run", str(profile), "--runs-dir", str(runs)])
+    assert r.exit_code == 1
+    assert "job 'fixture-job' failed: RuntimeError: the welding power source did not answer" in r.output
+    assert "captures so far are kept in" in r.output and "Traceback" not in r.output
+    (run,) = runs.iterdir()
+    result = json.loads((run / "result.json").read_text())
+    assert result["status"] == "failed" and result["error"]["type"] == "RuntimeError"
+    state = json.loads((run / "state.json").read_text())
+    assert state["captures"][0]["file"] == "capture-0.json" and (run / "capture-0.json").is_file()
+    assert state["steps"]["read robot"]["status"] == "done"
+    r = runner.invoke(main, ["run", str(profile), "--resume", str(run), "-q"])
+    assert r.exit_code == 0, r.output
+    assert list(runs.iterdir()) == [run]  # resumed in place
+    result = json.loads((run / "result.json").read_text())
+    assert result["status"] == "ok" and (run / "scaled.json").is_file()
+
+
+def test_resume_of_a_folder_that_is_not_a_run(runner, fixture_pm, fixtures_dir, tmp_path, wide_console):
+    r = runner.invoke(main, ["run", str(fixtures_dir / "fixture-job-sim.toml"), "--resume", str(tmp_path)])
+    assert r.exit_code == 1
+    assert f"{tmp_path} is not a run folder (no state.json)" in r.output
