@@ -258,30 +258,55 @@ class FlangeHandEye:
         report.update(radius=circ.radius, circle_rms=circ.rms, support=circ.stats["support"])
         return FlangeMeasurement(circ.center, circ.normal, face, report)
 
-    def measure_pose(self, m: FlangeMeasurement) -> np.ndarray:
+    def measure_pose(self, m: FlangeMeasurement, step_deg: float = 0.5) -> np.ndarray:
         """The flange's full pose ``T_cam_flange`` from a measurement: origin at the circle centre, z
-        along the face normal, the in-plane angle from ICP of the flange model (its holes and the pin
-        hole) started at 12 angles; the best-fitting start wins."""
+        along the face normal (out of the face, toward the camera), x toward the pin hole. The
+        in-plane angle is where the fewest measured face points fall inside the ISO holes (4 tapped
+        holes + the pin hole: one angle only fits), taken at the middle of the best plateau, then
+        refined by point-to-point ICP of the face model within 1 mm."""
         import open3d as o3d
 
+        from weldcell.plugins.handeye.flange_model import iso9409_dimensions
+
         z = np.asarray(m.normal, float)
-        ref = np.array([1.0, 0, 0]) if abs(z[0]) < 0.9 else np.array([0, 1.0, 0])
-        x0 = np.cross(np.cross(z, ref), z)
-        T0 = frame_from_axes(x0, z, m.p_cam)
+        z /= np.linalg.norm(z)
+        u = np.cross(z, [1.0, 0, 0]) if abs(z[0]) < 0.9 else np.cross(z, [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(z, u)
+        q = (m.face - m.p_cam) @ np.stack([u, v]).T
+        d = iso9409_dimensions(float(self.s.flange_d1))
+        rp, n = d["d1"] / 2e3, int(d["n"])
+        holes = [(np.pi / n + 2 * np.pi * k / n, d["d4"] / 2e3) for k in range(n)] + [(0.0, d["d5"] / 2e3)]
+        rho = np.linalg.norm(q, axis=1)
+        near = q[np.abs(rho - rp) < max(r for _, r in holes)]
+        theta = np.radians(np.arange(0.0, 360.0, step_deg))
+        inside = np.zeros(len(theta))
+        for a, r in holes:
+            c = rp * np.stack([np.cos(theta + a), np.sin(theta + a)], 1)
+            inside += (np.linalg.norm(near[None] - c[:, None], axis=2) < r - 0.0003).sum(1)
+        best = np.flatnonzero(inside == inside.min())
+        # the middle of the longest run of best angles (circularly)
+        runs, start = [], best[0]
+        for a, b in zip(best, np.r_[best[1:], best[0] + len(theta)], strict=True):
+            if b != a + 1:
+                runs.append((start, a))
+                start = b % len(theta)
+        if len(runs) > 1 and runs[0][0] == 0 and runs[-1][1] == len(theta) - 1:
+            runs = [(runs[-1][0], runs[0][1] + len(theta))] + runs[1:-1]
+        lo, hi = max(runs, key=lambda r: r[1] - r[0])
+        ang = theta[0] + ((lo + hi) / 2) * np.radians(step_deg)
+        x = np.cos(ang) * u + np.sin(ang) * v
+        T0 = frame_from_axes(x, z, m.p_cam)
         face_model = self.model[np.abs(self.model[:, 2]) < 1e-9]
-        tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face))
-        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(face_model))
-        best = (np.inf, None)
-        for a in np.linspace(0, 2 * np.pi, 12, endpoint=False):
-            Rz = np.eye(4)
-            Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-            reg = o3d.pipelines.registration.registration_icp(
-                src, tgt, 0.004, T0 @ Rz, o3d.pipelines.registration.TransformationEstimationPointToPoint(),
-                o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=60))
-            score = reg.inlier_rmse / max(reg.fitness, 1e-6)
-            if score < best[0]:
-                best = (score, np.asarray(reg.transformation))
-        return best[1]
+        reg = o3d.pipelines.registration.registration_icp(
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(face_model)),
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face)), 0.001, T0,
+            o3d.pipelines.registration.TransformationEstimationPointToPoint(),
+            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30))
+        T = np.asarray(reg.transformation)
+        m.report["pose"] = {"holes_violated": int(inside.min()), "icp_fitness": float(reg.fitness),
+                            "icp_rmse": float(reg.inlier_rmse)}
+        return T if reg.fitness > 0.5 else T0
 
     # -- solving ---------------------------------------------------------------------------------
     def calibrate_settings(self) -> dict:

@@ -430,8 +430,10 @@ def hand_eye_option(
               help="Hand-eye result (T_flange_camera), e.g. from `weldcell calibrate hand-eye`.")
 @click.option("--mount",
               help="Nominal camera mount on the flange: x,y,z,roll,pitch,yaw (m, rad, or with units).")
-@click.option("--roi-min", help="Keep only points above this corner x,y,z of the base frame (default: the run's).")
-@click.option("--roi-max", help="Keep only points below this corner x,y,z of the base frame (default: the run's).")
+@click.option("--roi-min", help="Keep only points above this corner x,y,z of the base frame (default: the "
+              "run's region).")
+@click.option("--roi-max", help="Keep only points below this corner x,y,z of the base frame (default: the "
+              "run's region).")
 @click.option("--profile", type=click.Path(path_type=Path),
               help="Take the reconstruct stage plugin and settings from this profile's [stages].")
 @click.option("--set", "sets", multiple=True, metavar="reconstruct.KEY=VALUE",
@@ -454,11 +456,13 @@ def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mo
     click.echo(f"scans           {len(data.scans)} from {scans_dir} ({data.layout}); hand-eye: {source}")
     views, names = data.scans, data.names
     if lo is not None or hi is not None:
-        from weldcell.plugins.scan_plan.job import crop_to_roi
+        from weldcell.plugins.scan_plan.job import crop_views
 
-        views = crop_to_roi(data.scans, T_fc, lo, hi)
-        kept = {id(v.T_base_flange) for v in views}
-        names = [n for n, v in zip(data.names, data.scans, strict=True) if id(v.T_base_flange) in kept]
+        cropped = crop_views(data.scans, T_fc, lo, hi)
+        if not cropped:
+            raise DataError("no scan has points inside the region of interest",
+                            "check --roi-min / --roi-max (metres, robot base frame) against where the part is")
+        views, names = [v for _, v in cropped], [data.names[i] for i, _ in cropped]
         fmt = lambda c: "-" if c is None else "(" + ", ".join(f"{v * 1000:.0f}" for v in c) + ") mm"  # noqa: E731
         click.echo(f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "
                    "views have points in it")

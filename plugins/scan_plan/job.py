@@ -193,12 +193,13 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
     return scans
 
 
-def crop_to_roi(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[PosedScan]:
-    """Drop each view's points outside the region of interest (robot base frame)."""
+def crop_views(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[tuple[int, PosedScan]]:
+    """(index, cropped view) of every view with at least 10 points inside the region of interest
+    (robot base frame); every view when there is no region."""
     if lo is None and hi is None:
-        return scans
+        return list(enumerate(scans))
     out = []
-    for sc in scans:
+    for i, sc in enumerate(scans):
         P = sc.cloud.transformed(sc.T_base_flange @ T_flange_camera).points
         keep = np.ones(len(P), dtype=bool)
         if lo is not None:
@@ -206,7 +207,13 @@ def crop_to_roi(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[PosedSc
         if hi is not None:
             keep &= np.all(P <= np.asarray(hi), axis=1)
         if keep.sum() >= 10:
-            out.append(PosedScan(sc.cloud.select(keep), sc.T_base_flange, sc.timestamp))
+            out.append((i, PosedScan(sc.cloud.select(keep), sc.T_base_flange, sc.timestamp)))
+    return out
+
+
+def crop_to_roi(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[PosedScan]:
+    """Drop each view's points outside the region of interest (robot base frame)."""
+    out = [sc for _, sc in crop_views(scans, T_flange_camera, lo, hi)]
     if not out:
         raise JobError("no capture has points inside the region of interest",
                        "check [job.settings] roi_min / roi_max against where the part is")
