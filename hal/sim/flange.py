@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from weldcell.sdk.errors import DataError
 
 #: d1 -> (d2 centring hole, d3 outer diameter, d4 tapped hole, d5 pin hole, number of tapped holes), mm
@@ -48,13 +47,20 @@ class FlangeGeometry:
 
     def __post_init__(self) -> None:
         if not self.dims_mm and float(self.d1_mm) not in ISO9409_1_MM:
-            raise DataError(f"no ISO 9409-1 flange with pitch circle {self.d1_mm} mm",
-                            f"use one of {sorted(ISO9409_1_MM)} or give dims_mm (d1, d2, d3, d4, d5, n)")
+            raise DataError(
+                f"no ISO 9409-1 flange with pitch circle {self.d1_mm} mm",
+                f"use one of {sorted(ISO9409_1_MM)} or give dims_mm (d1, d2, d3, d4, d5, n)",
+            )
         if self.link_diameter <= self.outer_diameter:
-            raise DataError(f"link diameter {self.link_diameter * 1e3:.1f} mm is not wider than the flange "
-                            f"({self.outer_diameter * 1e3:.1f} mm)", "give the wrist link's outer diameter")
+            raise DataError(
+                f"link diameter {self.link_diameter * 1e3:.1f} mm is not wider than the flange "
+                f"({self.outer_diameter * 1e3:.1f} mm)",
+                "give the wrist link's outer diameter",
+            )
         if self.thickness <= 0 or self.link_length <= 0 or self.resolution <= 0:
-            raise DataError("flange thickness, link length and resolution must be > 0", "give positive lengths")
+            raise DataError(
+                "flange thickness, link length and resolution must be > 0", "give positive lengths"
+            )
 
     @property
     def dims(self) -> dict:
@@ -179,6 +185,8 @@ def posed_mesh(V: np.ndarray, F: np.ndarray, T_world_frame: np.ndarray):
 
     T = np.asarray(T_world_frame, dtype=float)
     mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(V @ T[:3, :3].T + T[:3, 3], dtype=np.float32))
+    mesh.vertex.positions = o3d.core.Tensor(
+        np.ascontiguousarray(V @ T[:3, :3].T + T[:3, 3], dtype=np.float32)
+    )
     mesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(F, dtype=np.int32))
     return mesh

@@ -26,7 +26,7 @@ class TransportClosed(DeviceError):
 
 @dataclass(frozen=True)
 class Backoff:
-    """Reconnect schedule: ``attempts`` tries, waiting ``initial * factor**k`` (capped at ``max_delay``) between."""
+    """Reconnect schedule: ``attempts`` tries with waits ``initial * factor**k`` (at most ``max_delay``)."""
 
     attempts: int = 5
     initial: float = 0.05
@@ -39,7 +39,7 @@ class Backoff:
 
 
 class Transport:
-    """Base class: lifecycle, reconnect with backoff, context manager. Subclasses implement ``_open``/``_close``."""
+    """Base class: lifecycle, reconnect with backoff, ``with``. Subclasses implement ``_open``/``_close``."""
 
     what = "transport"
 
@@ -108,17 +108,19 @@ class Transport:
             except DeviceError as e:
                 last = e
         msg = getattr(last, "message", str(last))
-        raise TransportClosed(f"could not reconnect to {self.describe()} after {len(delays)} attempts ({msg})",
-                              self.fix_hint())
+        raise TransportClosed(
+            f"could not reconnect to {self.describe()} after {len(delays)} attempts ({msg})", self.fix_hint()
+        )
 
     def require_open(self) -> None:
         if not self.is_open:
             raise TransportClosed(f"{self.describe()} is not open", "call open() (or reconnect()) first")
 
     def timed_out(self, what: str, timeout: float) -> TransportTimeout:
-        return TransportTimeout(f"no {what} from {self.describe()} within {timeout:.3g} s",
-                                "check that the device is sending (powered, streaming, right settings) or raise "
-                                "the timeout")
+        return TransportTimeout(
+            f"no {what} from {self.describe()} within {timeout:.3g} s",
+            "check that the device is sending (powered, streaming, right settings) or raise the timeout",
+        )
 
     def closed(self, why: str) -> TransportClosed:
         return TransportClosed(f"{self.describe()}: {why}", "reconnect(); " + self.fix_hint())
@@ -142,7 +144,7 @@ class StreamTransport(Transport):
         self._buf = bytearray()
 
     def _read_some(self, timeout: float) -> bytes:
-        """Up to a chunk of bytes within ``timeout``: b"" on timeout; TransportClosed when the peer is gone."""
+        """A chunk of bytes within ``timeout``: b"" on timeout; TransportClosed when the peer is gone."""
         raise NotImplementedError
 
     def _write(self, data: bytes) -> None:
@@ -186,14 +188,17 @@ class StreamTransport(Transport):
                 return i + len(eol)
             if len(self._buf) > max_len:
                 self._buf.clear()
-                raise TransportClosed(f"{self.describe()}: no end of line ({eol!r}) within {max_len} bytes",
-                                      "check the line ending and the baud rate / protocol settings")
+                raise TransportClosed(
+                    f"{self.describe()}: no end of line ({eol!r}) within {max_len} bytes",
+                    "check the line ending and the baud rate / protocol settings",
+                )
             return None
 
         return self._take(self._fill(want, timeout, "line"))
 
-    def read_frame(self, length_format: str = ">H", length_includes_header: bool = False,
-                   timeout: float | None = None) -> bytes:
+    def read_frame(
+        self, length_format: str = ">H", length_includes_header: bool = False, timeout: float | None = None
+    ) -> bytes:
         """A length-prefixed frame; returns the bytes after the length field.
 
         ``length_format`` is the struct format of the length field; ``length_includes_header`` when the
@@ -212,7 +217,7 @@ class StreamTransport(Transport):
                 raise TransportClosed(f"{self.describe()}: invalid frame length {n}", "check the protocol")
             return total if len(self._buf) >= total else None
 
-        return self._take(self._fill(want, timeout, "frame"))[hdr.size:]
+        return self._take(self._fill(want, timeout, "frame"))[hdr.size :]
 
     def _take(self, n: int) -> bytes:
         out = bytes(self._buf[:n])

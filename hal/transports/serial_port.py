@@ -25,21 +25,38 @@ class SerialTransport(StreamTransport):
 
     what = "serial"
 
-    def __init__(self, port: str, baudrate: int = 115200, timeout: float = 1.0, bytesize: int = 8,
-                 parity: str = "N", stopbits: float = 1, rtscts: bool = False, xonxoff: bool = False,
-                 backoff: Backoff | None = None) -> None:
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 115200,
+        timeout: float = 1.0,
+        bytesize: int = 8,
+        parity: str = "N",
+        stopbits: float = 1,
+        rtscts: bool = False,
+        xonxoff: bool = False,
+        backoff: Backoff | None = None,
+    ) -> None:
         super().__init__(timeout, backoff)
         self.port = port
-        self.options = dict(baudrate=int(baudrate), bytesize=bytesize, parity=parity, stopbits=stopbits,
-                            rtscts=rtscts, xonxoff=xonxoff)
+        self.options = dict(
+            baudrate=int(baudrate),
+            bytesize=bytesize,
+            parity=parity,
+            stopbits=stopbits,
+            rtscts=rtscts,
+            xonxoff=xonxoff,
+        )
         self._ser = None
 
     def describe(self) -> str:
         return f"serial port {self.port} @ {self.options['baudrate']} baud"
 
     def fix_hint(self) -> str:
-        return (f"check that {self.port} exists, the device is plugged in and powered, you may open it "
-                "(e.g. member of the 'dialout' group), and no other program holds it")
+        return (
+            f"check that {self.port} exists, the device is plugged in and powered, you may open it "
+            "(e.g. member of the 'dialout' group), and no other program holds it"
+        )
 
     @property
     def is_open(self) -> bool:
@@ -49,15 +66,19 @@ class SerialTransport(StreamTransport):
         serial = _pyserial()
         self._buf.clear()
         try:
-            self._ser = serial.serial_for_url(self.port, timeout=0, write_timeout=self.timeout, **self.options)
+            self._ser = serial.serial_for_url(
+                self.port, timeout=0, write_timeout=self.timeout, **self.options
+            )
         except serial.SerialException as e:
             self._ser = None
             raise OSError(str(e)) from e
         except ValueError as e:
             from weldcell.sdk.errors import UsageError
 
-            raise UsageError(f"invalid serial settings for {self.port}: {e}",
-                             "use a standard baud rate, bytesize 5-8, parity N/E/O/M/S, stopbits 1/1.5/2") from e
+            raise UsageError(
+                f"invalid serial settings for {self.port}: {e}",
+                "use a standard baud rate, bytesize 5-8, parity N/E/O/M/S, stopbits 1/1.5/2",
+            ) from e
 
     def _close(self) -> None:
         ser, self._ser = self._ser, None

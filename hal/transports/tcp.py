@@ -13,8 +13,15 @@ class TcpTransport(StreamTransport):
 
     what = "TCP"
 
-    def __init__(self, host: str, port: int, timeout: float = 1.0, connect_timeout: float = 2.0,
-                 backoff: Backoff | None = None, nodelay: bool = True) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        timeout: float = 1.0,
+        connect_timeout: float = 2.0,
+        backoff: Backoff | None = None,
+        nodelay: bool = True,
+    ) -> None:
         super().__init__(timeout, backoff)
         self.host, self.port = host, int(port)
         self.connect_timeout = float(connect_timeout)
@@ -25,7 +32,7 @@ class TcpTransport(StreamTransport):
         return f"tcp://{self.host}:{self.port}"
 
     def fix_hint(self) -> str:
-        return f"check that {self.host} is reachable and listening on port {self.port} (network, firewall, power)"
+        return f"check that {self.host} is reachable and listening on port {self.port} (network, firewall)"
 
     @property
     def is_open(self) -> bool:
@@ -97,8 +104,14 @@ class UdpTransport(Transport):
 
     what = "UDP"
 
-    def __init__(self, host: str, port: int, timeout: float = 1.0, bind: tuple[str, int] | None = None,
-                 backoff: Backoff | None = None) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        timeout: float = 1.0,
+        bind: tuple[str, int] | None = None,
+        backoff: Backoff | None = None,
+    ) -> None:
         super().__init__(timeout, backoff)
         self.host, self.port = host, int(port)
         self.bind = bind

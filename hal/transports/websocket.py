@@ -22,8 +22,14 @@ class WebSocketTransport(Transport):
 
     what = "WebSocket"
 
-    def __init__(self, url: str, timeout: float = 1.0, open_timeout: float = 2.0, backoff: Backoff | None = None,
-                 max_size: int | None = 2**22) -> None:
+    def __init__(
+        self,
+        url: str,
+        timeout: float = 1.0,
+        open_timeout: float = 2.0,
+        backoff: Backoff | None = None,
+        max_size: int | None = 2**22,
+    ) -> None:
         super().__init__(timeout, backoff)
         self.url = url
         self.open_timeout = float(open_timeout)
@@ -45,14 +51,17 @@ class WebSocketTransport(Transport):
         from websockets.exceptions import InvalidHandshake, InvalidURI  # noqa: PLC0415
 
         try:
-            ws = client.connect(self.url, open_timeout=self.open_timeout, max_size=self.max_size,
-                                compression=None)
+            ws = client.connect(
+                self.url, open_timeout=self.open_timeout, max_size=self.max_size, compression=None
+            )
             # entering the connection is what ``with connect(...)`` does; it is closed in close()
             self._ws = ws.__enter__()
         except InvalidURI as e:
             from weldcell.sdk.errors import UsageError
 
-            raise UsageError(f"invalid WebSocket URL {self.url!r}: {e}", "write it like ws://127.0.0.1:6437/v6.json")
+            raise UsageError(
+                f"invalid WebSocket URL {self.url!r}: {e}", "write it like ws://127.0.0.1:6437/v6.json"
+            ) from e
         except InvalidHandshake as e:
             raise OSError(f"handshake refused ({e})") from e
 
@@ -100,5 +109,7 @@ class WebSocketTransport(Transport):
         try:
             return json.loads(msg)
         except (ValueError, TypeError) as e:
-            raise DataError(f"{self.url} sent a message that is not JSON: {str(msg)[:60]!r}",
-                            "check that the URL points at the device's JSON service") from e
+            raise DataError(
+                f"{self.url} sent a message that is not JSON: {str(msg)[:60]!r}",
+                "check that the URL points at the device's JSON service",
+            ) from e

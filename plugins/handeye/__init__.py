@@ -11,30 +11,56 @@ from weldcell.sdk.hookspecs import hookimpl
 def weldcell_register_stages(register) -> None:
     from weldcell.plugins.handeye import stages as st
 
-    register(StageSpec(name="handeye.flange", kind="handeye", summary="flange segmentation + RANSAC circle, "
-                       "scaled SVD fit (eqs. 9-12), robust fit, Algorithm 1 with the ICP metric (eq. 13, 21)",
-                       settings=st.FlangeSettings, factory=st.FlangeHandEye))
-    register(StageSpec(name="handeye.opencv", kind="handeye", summary="classical AX=XB / AX=YB solvers (Tsai, "
-                       "Park, Horaud, Andreff, Daniilidis, Shah, Li) on board or flange poses",
-                       settings=st.ClassicalSettings, factory=st.ClassicalHandEye))
+    register(
+        StageSpec(
+            name="handeye.flange",
+            kind="handeye",
+            summary="flange segmentation + RANSAC circle, "
+            "scaled SVD fit (eqs. 9-12), robust fit, Algorithm 1 with the ICP metric (eq. 13, 21)",
+            settings=st.FlangeSettings,
+            factory=st.FlangeHandEye,
+        )
+    )
+    register(
+        StageSpec(
+            name="handeye.opencv",
+            kind="handeye",
+            summary="classical AX=XB / AX=YB solvers (Tsai, "
+            "Park, Horaud, Andreff, Daniilidis, Shah, Li) on board or flange poses",
+            settings=st.ClassicalSettings,
+            factory=st.ClassicalHandEye,
+        )
+    )
 
 
 @hookimpl
 def weldcell_register_jobs(register) -> None:
     from weldcell.plugins.handeye import job
 
-    register(JobSpec(
-        name="calibrate", kind="job",
-        summary="hand-eye calibration of a fixed depth camera from scans of the robot's flange (online)",
-        settings=job.CalibrateSettings, run=job.run,
-        devices=(DeviceRole("robot", "robot", "the arm whose flange is scanned"),
-                 DeviceRole("camera", "depth_camera", "the depth camera fixed in the cell")),
-        stages=(StageRole("handeye", "handeye", "handeye.flange", "measure the flange and solve the hand-eye"),),
-    ))
+    register(
+        JobSpec(
+            name="calibrate",
+            kind="job",
+            summary="hand-eye calibration of a fixed depth camera from scans of the robot's flange (online)",
+            settings=job.CalibrateSettings,
+            run=job.run,
+            devices=(
+                DeviceRole("robot", "robot", "the arm whose flange is scanned"),
+                DeviceRole("camera", "depth_camera", "the depth camera fixed in the cell"),
+            ),
+            stages=(
+                StageRole(
+                    "handeye", "handeye", "handeye.flange", "measure the flange and solve the hand-eye"
+                ),
+            ),
+        )
+    )
 
 
 @hookimpl
 def weldcell_register_commands(register) -> None:
     from weldcell.plugins.handeye.cli import calibrate_group
 
-    register(CommandSpec(name="calibrate", command=calibrate_group, summary="calibrate a cell from recorded data"))
+    register(
+        CommandSpec(name="calibrate", command=calibrate_group, summary="calibrate a cell from recorded data")
+    )

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import click
 import numpy as np
-
 from weldcell.sdk.errors import DataError, UsageError
 
 LAYOUTS = ("auto", "weldcell", "ancorasir-sample", "ancorasir-pairs", "ancorasir-kinect")
@@ -27,7 +26,9 @@ def detect_layout(path: Path) -> str:
     if path.is_file() and path.suffix == ".json":
         return "weldcell"
     if not path.is_dir():
-        raise UsageError(f"{path} is not a folder or a samples.json file", "give the folder of the recorded data")
+        raise UsageError(
+            f"{path} is not a folder or a samples.json file", "give the folder of the recorded data"
+        )
     if (path / "samples.json").is_file():
         return "weldcell"
     if (path / "calib_data.json").is_file():
@@ -37,7 +38,8 @@ def detect_layout(path: Path) -> str:
     if (path / "readRobot.txt").is_file() and (path / "measureRobot.txt").is_file():
         return "ancorasir-kinect"
     raise UsageError(
-        f"{path}: no hand-eye data found (no samples.json, calib_data.json, p_camera_mat.npy or readRobot.txt)",
+        f"{path}: no hand-eye data found (no samples.json, calib_data.json, p_camera_mat.npy "
+        "or readRobot.txt)",
         "point at a folder with samples.json (weldcell/handeye-samples@1) or an ancorasir layout; "
         "--layout forces one",
     )
@@ -98,8 +100,10 @@ def _stage_settings(settings_file: Path | None, overrides: dict):
         return FlangeSettings.model_validate(values)
     except ValidationError as e:
         first = e.errors()[0]
-        raise UsageError(f"flange settings: {'.'.join(map(str, first['loc']))}: {first['msg']}",
-                         "fix the value (see docs/methods/hand-eye.md)") from None
+        raise UsageError(
+            f"flange settings: {'.'.join(map(str, first['loc']))}: {first['msg']}",
+            "fix the value (see docs/methods/hand-eye.md)",
+        ) from None
 
 
 def measure_scans(ss, stage, need_pose: bool) -> list[str]:
@@ -166,35 +170,94 @@ def calibrate_group() -> None:
 
 @calibrate_group.command("hand-eye")
 @click.argument("data_dir", type=click.Path(path_type=Path))
-@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("handeye.json"), show_default=True,
-              help="Where to write the weldcell/hand-eye@1 result.")
-@click.option("--method", default="flange", show_default=True,
-              type=click.Choice(["flange", "flange-svd", "flange-iterative", "tsai", "park", "horaud", "andreff",
-                                 "daniilidis", "shah", "li"]), help="Solver (flange* = paper 003).")
-@click.option("--config", "config", type=click.Choice(["eye-on-base", "eye-in-hand", "eye-on-arm",
-                                                       "co-manipulation"]),
-              help="Hand-eye configuration (default: the data's).")
-@click.option("--units", type=click.Choice(["mm", "m"]), help="Units of the data's lengths (default: the file's).")
-@click.option("--layout", type=click.Choice(LAYOUTS), default="auto", show_default=True, help="Force a data layout.")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    default=Path("handeye.json"),
+    show_default=True,
+    help="Where to write the weldcell/hand-eye@1 result.",
+)
+@click.option(
+    "--method",
+    default="flange",
+    show_default=True,
+    type=click.Choice(
+        [
+            "flange",
+            "flange-svd",
+            "flange-iterative",
+            "tsai",
+            "park",
+            "horaud",
+            "andreff",
+            "daniilidis",
+            "shah",
+            "li",
+        ]
+    ),
+    help="Solver (flange* = paper 003).",
+)
+@click.option(
+    "--config",
+    "config",
+    type=click.Choice(["eye-on-base", "eye-in-hand", "eye-on-arm", "co-manipulation"]),
+    help="Hand-eye configuration (default: the data's).",
+)
+@click.option(
+    "--units", type=click.Choice(["mm", "m"]), help="Units of the data's lengths (default: the file's)."
+)
+@click.option(
+    "--layout", type=click.Choice(LAYOUTS), default="auto", show_default=True, help="Force a data layout."
+)
 @click.option("--flange-model", type=click.Path(path_type=Path), help="Flange CAD/cloud for the ICP metric.")
-@click.option("--flange-d1", type=click.Choice(["31.5", "40", "50", "63", "80", "100"]),
-              help="ISO 9409-1 flange size (pitch circle, mm); default 50.")
+@click.option(
+    "--flange-d1",
+    type=click.Choice(["31.5", "40", "50", "63", "80", "100"]),
+    help="ISO 9409-1 flange size (pitch circle, mm); default 50.",
+)
 @click.option("--verifier", type=click.Choice(["consensus", "icp"]), help="Algorithm 1's error metric.")
-@click.option("--verify-sample", type=int, help="Sample whose scan is the ICP verification cloud (with "
-              "--verifier icp; default the first with a scan). It is left out of the fit.")
+@click.option(
+    "--verify-sample",
+    type=int,
+    help="Sample whose scan is the ICP verification cloud (with "
+    "--verifier icp; default the first with a scan). It is left out of the fit.",
+)
 @click.option("--feature", help="The circle centre in the flange frame: tcp, estimate, or x,y,z in mm.")
 @click.option("--inlier-threshold", type=float, help="Inlier residual in mm (default: robust).")
 @click.option("--allow-coplanar", is_flag=True, help="Accept flange positions on one plane (warned).")
-@click.option("--settings", "settings_file", type=click.Path(path_type=Path),
-              help="TOML/JSON with handeye.flange settings (or a profile: its [stages.handeye.settings]).")
+@click.option(
+    "--settings",
+    "settings_file",
+    type=click.Path(path_type=Path),
+    help="TOML/JSON with handeye.flange settings (or a profile: its [stages.handeye.settings]).",
+)
 @click.option("--report", "report_dir", type=click.Path(path_type=Path), help="Write summary and plots here.")
-@click.option("--remeasure", is_flag=True, help="Measure the flange centres from the scans even when the data "
-              "stores them.")
+@click.option(
+    "--remeasure",
+    is_flag=True,
+    help="Measure the flange centres from the scans even when the data stores them.",
+)
 @click.option("-q", "--quiet", is_flag=True, help="Print only the result file name.")
-def hand_eye(data_dir: Path, output: Path, method: str, config: str | None, units: str | None, layout: str,
-             flange_model: Path | None, flange_d1: str | None, verifier: str | None, verify_sample: int | None,
-             feature: str | None, inlier_threshold: float | None, allow_coplanar: bool,
-             settings_file: Path | None, report_dir: Path | None, remeasure: bool, quiet: bool) -> None:
+def hand_eye(
+    data_dir: Path,
+    output: Path,
+    method: str,
+    config: str | None,
+    units: str | None,
+    layout: str,
+    flange_model: Path | None,
+    flange_d1: str | None,
+    verifier: str | None,
+    verify_sample: int | None,
+    feature: str | None,
+    inlier_threshold: float | None,
+    allow_coplanar: bool,
+    settings_file: Path | None,
+    report_dir: Path | None,
+    remeasure: bool,
+    quiet: bool,
+) -> None:
     """Hand-eye calibration of DATA_DIR; writes the transform to -o and prints a summary."""
     from weldcell.plugins.handeye.report import summary_lines, write_offline_report
     from weldcell.plugins.handeye.samples_io import write_result
@@ -203,14 +266,21 @@ def hand_eye(data_dir: Path, output: Path, method: str, config: str | None, unit
 
     if flange_model is not None and not flange_model.is_file():
         raise UsageError(f"flange model not found: {flange_model}", "give an STL/PCD/PLY file of the flange")
-    s = _stage_settings(settings_file, {
-        "flange_model": str(flange_model) if flange_model else None,
-        "flange_d1": float(flange_d1) if flange_d1 else None, "verifier": verifier,
-        "inlier_threshold": None if inlier_threshold is None else inlier_threshold * 1e-3,
-        "allow_coplanar": allow_coplanar or None,
-    })
+    s = _stage_settings(
+        settings_file,
+        {
+            "flange_model": str(flange_model) if flange_model else None,
+            "flange_d1": float(flange_d1) if flange_d1 else None,
+            "verifier": verifier,
+            "inlier_threshold": None if inlier_threshold is None else inlier_threshold * 1e-3,
+            "allow_coplanar": allow_coplanar or None,
+        },
+    )
     stage = FlangeHandEye(s)
-    ss = read_data(data_dir, layout, units)
+    try:
+        ss = read_data(data_dir, layout, units)
+    except DataError as e:
+        raise _cli_fix(e) from None
     notes = list(ss.notes)
     if remeasure:
         n = sum(smp.cloud is not None for smp in ss.samples)
@@ -223,6 +293,11 @@ def hand_eye(data_dir: Path, output: Path, method: str, config: str | None, unit
     try:
         notes += measure_scans(ss, stage, need_pose=not method.startswith("flange"))
         verification = None
+        if method == "flange-iterative" and verifier is None and s.verifier == "icp":
+            if not any(smp.cloud is not None and smp.T_base_flange is not None for smp in ss.samples):
+                stage = FlangeHandEye(s.model_copy(update={"verifier": "consensus"}))
+                s = stage.s
+                notes.append("Algorithm 1 verifies by consensus (no scan with a robot pose for eq. 13)")
         if method == "flange-iterative" and s.verifier == "icp":
             verification = _verification_sample(ss, stage, verify_sample)
             notes.append(f"sample {verification[2]} is the ICP verification scan (left out of the fit)")
@@ -231,13 +306,18 @@ def hand_eye(data_dir: Path, output: Path, method: str, config: str | None, unit
         f = _feature(feature)
         if f is not None:
             extra["feature"] = f
-        result = stage.solve(ss.samples, config or ss.config, verification=verification, method=method, **extra)
+        result = stage.solve(
+            ss.samples, config or ss.config, verification=verification, method=method, **extra
+        )
     except DataError as e:
         raise _cli_fix(e) from None
     result.warnings += [f"skipped {n}" for n in notes if n.startswith("scan ")]
     result.metrics["sample_index"] = [int(smp.meta.get("index", i)) for i, smp in enumerate(ss.samples)]
-    result.metrics["source"] = {"data": str(data_dir), "layout": layout if layout != "auto" else
-                                detect_layout(data_dir), "notes": notes}
+    result.metrics["source"] = {
+        "data": str(data_dir),
+        "layout": layout if layout != "auto" else detect_layout(data_dir),
+        "notes": notes,
+    }
     write_result(output, result)
     lines = summary_lines(result)
     lines += [f"note            {n}" for n in notes]
@@ -256,13 +336,18 @@ def _verification_sample(ss, stage, index: int | None):
     cands = [i for i, smp in enumerate(ss.samples) if smp.cloud is not None and smp.T_base_flange is not None]
     if index is None:
         if not cands:
-            raise UsageError("the ICP verifier needs a sample with a scan and a robot pose",
-                             "use --verifier consensus for point-pair data")
+            raise UsageError(
+                "the ICP verifier needs a sample with a scan and a robot pose",
+                "use --verifier consensus for point-pair data",
+            )
         index = cands[0]
     if index not in cands:
         raise UsageError(f"--verify-sample {index} has no scan with a robot pose", f"use one of {cands}")
     smp = ss.samples.pop(index)
-    pts = smp.cloud if not isinstance(smp.cloud, str | Path) else read_cloud(
-        smp.cloud, units=smp.meta.get("cloud_units", "m"), frame="camera").points
+    pts = (
+        smp.cloud
+        if not isinstance(smp.cloud, str | Path)
+        else read_cloud(smp.cloud, units=smp.meta.get("cloud_units", "m"), frame="camera").points
+    )
     m = stage.measure(pts, seed=index)
     return m.face, smp.T_base_flange, int(smp.meta.get("index", index))

@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
-
 from weldcell.plugins.handeye.pointfit import scaled_svd_fit
 from weldcell.plugins.handeye.result import HandEyeSample
 from weldcell.plugins.handeye.samples_io import write_result, write_samples
@@ -36,16 +35,29 @@ class CalibrateSettings(Settings):
     box_min: Vec3 = Field(description="lower corner of the box the flange visits, robot base frame [m]")
     box_max: Vec3 = Field(description="upper corner of that box, robot base frame [m]")
     n_poses: int = Field(30, ge=4, le=500, description="calibration poses planned")
-    max_tilt: Angle = Field(0.3, ge=0, le=1.2, description="largest random tilt of the flange away from "
-                            "facing the camera, about each of its x and y axes [rad] (§3.1: 0.3)")
-    max_spin: Angle = Field(0.3, ge=0, le=3.1416, description="largest random turn about the flange axis [rad]")
-    face_toward: Vec3 | None = Field(None, description="point the flange faces, robot base frame [m]; default: "
-                                     "the camera's nominal mount in the profile")
+    max_tilt: Angle = Field(
+        0.3,
+        ge=0,
+        le=1.2,
+        description="largest random tilt of the flange away from "
+        "facing the camera, about each of its x and y axes [rad] (§3.1: 0.3)",
+    )
+    max_spin: Angle = Field(
+        0.3, ge=0, le=3.1416, description="largest random turn about the flange axis [rad]"
+    )
+    face_toward: Vec3 | None = Field(
+        None,
+        description="point the flange faces, robot base frame [m]; default: "
+        "the camera's nominal mount in the profile",
+    )
     seed: int | None = Field(None, description="seed of the pose plan; default: the cell's seed")
     min_poses: int = Field(8, ge=4, description="Algorithm 1 may stop only after this many flange centres")
     stop_at_target: bool = Field(True, description="stop once Algorithm 1's cost reaches e_required")
-    verification_scan: bool = Field(True, description="scan the flange at the box centre first (the "
-                                    "verification cloud of the ICP metric, eq. 13)")
+    verification_scan: bool = Field(
+        True,
+        description="scan the flange at the box centre first (the "
+        "verification cloud of the ICP metric, eq. 13)",
+    )
     min_points: int = Field(200, ge=10, description="a scan with fewer valid points has no flange")
     reconnects: int = Field(2, ge=0, description="reconnection attempts when the camera drops")
     save_clouds: bool = Field(True, description="keep every scan (cropped to the stage's box) in captures/")
@@ -74,8 +86,9 @@ def _grid_order(n: int, rng: np.random.Generator) -> np.ndarray:
     return G[first + rest][:n]
 
 
-def plan_poses(box_min, box_max, n: int, face_toward, max_tilt: float, max_spin: float,
-               seed: int) -> tuple[np.ndarray, np.ndarray]:
+def plan_poses(
+    box_min, box_max, n: int, face_toward, max_tilt: float, max_spin: float, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Calibration flange poses (n, 4, 4) in the base frame and the verification pose (box centre,
     facing ``face_toward``). Each pose: a grid node, the flange z axis toward ``face_toward``, then
     random rotations about the flange x and y (|angle| <= max_tilt) and z (|angle| <= max_spin)."""
@@ -89,7 +102,9 @@ def plan_poses(box_min, box_max, n: int, face_toward, max_tilt: float, max_spin:
     def facing(p: np.ndarray) -> np.ndarray:
         z = target - p
         if np.linalg.norm(z) < 1e-6:
-            raise DataError("face_toward lies inside the pose box", "give the camera's position in the base frame")
+            raise DataError(
+                "face_toward lies inside the pose box", "give the camera's position in the base frame"
+            )
         z /= np.linalg.norm(z)
         up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
         return frame_from_axes(up - z * (up @ z), z, p)
@@ -177,8 +192,13 @@ def _scan(ctx, stage, T_goal: np.ndarray, name: str, predicted, seed: int) -> di
         m = stage.measure(P, predicted, seed=seed)
     except DataError as e:
         return {**rec, "status": "no-flange", "reason": e.message}
-    rec.update(status="ok", p_cam=m.p_cam.tolist(), normal=m.normal.tolist(),
-               radius=float(m.report["radius"]), support=int(m.report["support"]))
+    rec.update(
+        status="ok",
+        p_cam=m.p_cam.tolist(),
+        normal=m.normal.tolist(),
+        radius=float(m.report["radius"]),
+        support=int(m.report["support"]),
+    )
     if "T_cam_flange" in m.report:
         rec["T_cam_target"] = np.asarray(m.report["T_cam_flange"]).tolist()
     rec["_face"] = m.face
@@ -215,9 +235,11 @@ def _verification(ctx, stage, T_v: np.ndarray, seed: int):
         rec = _scan(ctx, stage, T_v, "verification", None, seed)
         ctx.state.add_capture({"kind": "verification", **_record_public(rec)})
     if rec["status"] != "ok":
-        raise JobError(f"verification scan at the box centre failed: {rec['reason']}",
-                       "make sure the flange at the centre of [job.settings] box_min/box_max faces the camera "
-                       "in range, or set verifier = 'consensus' in [stages.handeye.settings]")
+        raise JobError(
+            f"verification scan at the box centre failed: {rec['reason']}",
+            "make sure the flange at the centre of [job.settings] box_min/box_max faces the camera "
+            "in range, or set verifier = 'consensus' in [stages.handeye.settings]",
+        )
     return rec["_face"], np.asarray(rec["T_base_flange"], float)
 
 
@@ -241,8 +263,10 @@ def run(ctx) -> dict:
     use_icp = stage.needs == "flange" and flange.s.verifier == "icp"
     verification = _verification(ctx, flange, T_v, seed) if (use_icp and s.verification_scan) else None
     if use_icp and verification is None:
-        raise JobError("the ICP verifier needs the verification scan", "set verification_scan = true, or "
-                       "verifier = 'consensus' in [stages.handeye.settings]")
+        raise JobError(
+            "the ICP verifier needs the verification scan",
+            "set verification_scan = true, or verifier = 'consensus' in [stages.handeye.settings]",
+        )
     pool = flange.pool(verification, verifier=None if use_icp else "consensus")
     track: list[dict] = []
     ok_recs: list[dict] = []
@@ -284,11 +308,16 @@ def run(ctx) -> dict:
     ctx.state.data["notes"]["skipped"] = notes
     ctx.state.save()
 
-    samples = [HandEyeSample(T_base_flange=np.asarray(r["T_base_flange"], float),
-                             p_cam=np.asarray(r["p_cam"], float),
-                             T_cam_target=None if "T_cam_target" not in r else np.asarray(r["T_cam_target"]),
-                             cloud=str(ctx.run_dir / r["file"]) if "file" in r else None,
-                             meta={"index": r["index"]}) for r in ok_recs]
+    samples = [
+        HandEyeSample(
+            T_base_flange=np.asarray(r["T_base_flange"], float),
+            p_cam=np.asarray(r["p_cam"], float),
+            T_cam_target=None if "T_cam_target" not in r else np.asarray(r["T_cam_target"]),
+            cloud=str(ctx.run_dir / r["file"]) if "file" in r else None,
+            meta={"index": r["index"]},
+        )
+        for r in ok_recs
+    ]
     if len(samples) < 4:
         raise JobError(
             f"only {len(samples)} flange centre(s) measured from {len(poses)} planned poses (need 4)",
@@ -298,25 +327,38 @@ def run(ctx) -> dict:
     with ctx.step(f"solve ({stage.name}, {getattr(stage.s, 'method', '')})"):
         result = stage.solve(samples, config, verification=verification)
     result.metrics["online"] = {
-        "planned": len(poses), "visited": sum(1 for r in ctx.state.captures if r.get("kind") == "pose"),
-        "centres": len(samples), "refused": sum("refused" in n for n in notes),
-        "no_flange": sum("no-flange" in n for n in notes), "stop": stop,
-        "pool": [int(ok_recs[j]["index"]) for j in pool.pool], "pool_cost_m": pool.cost,
-        "pool_converged": pool.converged, "cost_history_m": [t["cost"] for t in track],
+        "planned": len(poses),
+        "visited": sum(1 for r in ctx.state.captures if r.get("kind") == "pose"),
+        "centres": len(samples),
+        "refused": sum("refused" in n for n in notes),
+        "no_flange": sum("no-flange" in n for n in notes),
+        "stop": stop,
+        "pool": [int(ok_recs[j]["index"]) for j in pool.pool],
+        "pool_cost_m": pool.cost,
+        "pool_converged": pool.converged,
+        "cost_history_m": [t["cost"] for t in track],
     }
     result.metrics["sample_index"] = [r["index"] for r in ok_recs]
     result.warnings += [f"skipped {n}" for n in notes]
     write_result(ctx.path("handeye.json"), result)
     write_samples(ctx.path("samples.json"), samples, config)
-    figures: dict = {"transform": result.name, "method": result.method, "samples": len(samples),
-                     "inliers": int(np.sum(result.inliers)), "stop": stop,
-                     "rms_inliers_mm": 1e3 * result.metrics.get("rms_inliers_m", float("nan"))}
+    figures: dict = {
+        "transform": result.name,
+        "method": result.method,
+        "samples": len(samples),
+        "inliers": int(np.sum(result.inliers)),
+        "stop": stop,
+        "rms_inliers_mm": 1e3 * result.metrics.get("rms_inliers_m", float("nan")),
+    }
     if truth is not None:
         dt, dr = pose_error(result.T, truth)
         figures["error_vs_truth"] = {"translation_mm": dt * 1e3, "rotation_deg": float(np.degrees(dr))}
         if pool.H is not None:
             dt2, dr2 = pose_error(pool.H, truth)
-            figures["algorithm1_error_vs_truth"] = {"translation_mm": dt2 * 1e3, "rotation_deg": float(np.degrees(dr2))}
+            figures["algorithm1_error_vs_truth"] = {
+                "translation_mm": dt2 * 1e3,
+                "rotation_deg": float(np.degrees(dr2)),
+            }
     if ctx.profile.output.report:
         with ctx.step("report"):
             write_report(ctx, result, track, notes, truth, stop)

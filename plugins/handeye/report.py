@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from weldcell.plugins.handeye.result import HandEyeResult
 from weldcell.sdk.geometry import T_to_rpy, pose_error
 
@@ -28,32 +27,58 @@ def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> lis
     ok = np.isfinite(res)
     if ok.any():
         r_in = res[inl & ok]
-        lines.append(f"samples         {len(res)} ({int(inl.sum())} inliers, {int((~inl & ok).sum())} outliers, "
-                     f"{int((~ok).sum())} without a flange)")
+        it = result.method == "flange-iterative"
+        kept, other = ("in Algorithm 1's pool", "others") if it else ("inliers", "outliers")
+        lines.append(
+            f"samples         {len(res)} ({int(inl.sum())} {kept}, {int((~inl & ok).sum())} "
+            f"{other}, {int((~ok).sum())} without a flange)"
+        )
         if len(r_in):
-            lines.append(f"residuals       inliers rms {np.sqrt(np.mean(r_in ** 2)):.3f} mm, median "
-                         f"{np.median(r_in):.3f} mm, max {r_in.max():.3f} mm")
+            lines.append(
+                f"residuals       inliers rms {np.sqrt(np.mean(r_in**2)):.3f} mm, median "
+                f"{np.median(r_in):.3f} mm, max {r_in.max():.3f} mm"
+            )
     thr = m.get("inlier_threshold")
-    for j in np.flatnonzero(~inl):
-        why = ("no flange centre" if not ok[j] else
-               f"residual {res[j]:.2f} mm > threshold {thr * 1e3:.2f} mm" if thr else
-               f"residual {res[j]:.2f} mm, not in Algorithm 1's pool" if result.method == "flange-iterative"
-               else f"residual {res[j]:.2f} mm")
-        lines.append(f"  outlier       sample {idx[j] if j < len(idx) else j}: {why}")
+    if result.method == "flange-iterative":
+        rest = np.flatnonzero(~inl & ok)
+        if len(rest):
+            k = rest[np.argmax(res[rest])]
+            lines.append(
+                f"  not in pool   {len(rest)} samples: residual median {np.median(res[rest]):.3f} mm, max "
+                f"{res[k]:.2f} mm (sample {idx[k] if k < len(idx) else k})"
+            )
+    else:
+        for j in np.flatnonzero(~inl):
+            why = (
+                "no flange centre"
+                if not ok[j]
+                else f"residual {res[j]:.2f} mm > threshold {thr * 1e3:.2f} mm"
+                if thr
+                else f"residual {res[j]:.2f} mm"
+            )
+            lines.append(f"  outlier       sample {idx[j] if j < len(idx) else j}: {why}")
     if "pool" in m and "online" not in m:
-        lines.append(f"Algorithm 1     pool {m['pool']}, cost {m['cost'] * 1e3:.3f} mm, "
-                     f"{'converged' if m.get('converged') else 'not converged'}")
+        lines.append(
+            f"Algorithm 1     pool {m['pool']}, cost {m['cost'] * 1e3:.3f} mm, "
+            f"{'converged' if m.get('converged') else 'not converged'}"
+        )
     on = m.get("online")
     if on:
-        lines.append(f"poses           {on['visited']} of {on['planned']} visited, {on['centres']} centres, "
-                     f"{on['refused']} refused by the safety gate, {on['no_flange']} without a flange")
-        lines.append(f"Algorithm 1     cost {on['pool_cost_m'] * 1e3:.3f} mm, pool = poses {on['pool']}; "
-                     f"stopped: {on['stop']}")
+        lines.append(
+            f"poses           {on['visited']} of {on['planned']} visited, {on['centres']} centres, "
+            f"{on['refused']} refused by the safety gate, {on['no_flange']} without a flange"
+        )
+        lines.append(
+            f"Algorithm 1     cost {on['pool_cost_m'] * 1e3:.3f} mm, pool = poses {on['pool']}; "
+            f"stopped: {on['stop']}"
+        )
     b = m.get("bootstrap") or {}
     if "t_std" in b:
         t = np.asarray(b["t_std"]) * 1e3
-        lines.append(f"confidence      bootstrap std t [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] mm, rotation "
-                     f"{np.degrees(b['rot_std']):.3f} deg ({b['n']} resamples)")
+        lines.append(
+            f"confidence      bootstrap std t [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] mm, rotation "
+            f"{np.degrees(b['rot_std']):.3f} deg ({b['n']} resamples)"
+        )
     if truth is not None:
         dt, dr = pose_error(T, truth)
         lines.append(f"vs ground truth {dt * 1e3:.3f} mm, {np.degrees(dr):.4f} deg (simulated camera mount)")
@@ -90,7 +115,9 @@ def _plots(folder: Path, result: HandEyeResult, track: list[dict], truth) -> lis
 
     if track:
         n = np.array([t["n"] for t in track])
-        fig, axes = plt.subplots(1, 3 if truth is not None else 1, figsize=(15 if truth is not None else 6, 4))
+        fig, axes = plt.subplots(
+            1, 3 if truth is not None else 1, figsize=(15 if truth is not None else 6, 4)
+        )
         axes = np.atleast_1d(axes)
         cost = np.array([t["cost"] for t in track]) * 1e3
         axes[0].semilogy(n[np.isfinite(cost)], cost[np.isfinite(cost)], "o-")
@@ -99,8 +126,9 @@ def _plots(folder: Path, result: HandEyeResult, track: list[dict], truth) -> lis
         axes[0].set_title("cost of the 4-pair pool")
         axes[0].grid(alpha=0.3, which="both")
         if truth is not None:
-            for k, (key, label) in enumerate((("pool_error", "Algorithm 1 (pool)"),
-                                              ("all_data_error", "all data (eqs. 9-12)"))):
+            for k, (key, label) in enumerate(
+                (("pool_error", "Algorithm 1 (pool)"), ("all_data_error", "all data (eqs. 9-12)"))
+            ):
                 rows = [(t["n"], *t[key]) for t in track if key in t]
                 if not rows:
                     continue
@@ -132,7 +160,9 @@ def write_report(ctx, result: HandEyeResult, track: list[dict], notes: list[str]
         lines.append(f"  skipped       {n}")
     if len(notes) > 20:
         lines.append(f"  ... and {len(notes) - 20} more (state.json notes)")
-    timings = ", ".join(f"{k.split(' (')[0]} {v:.2f}s" for k, v in ctx.timings.items() if not k.startswith("open"))
+    timings = ", ".join(
+        f"{k.split(' (')[0]} {v:.2f}s" for k, v in ctx.timings.items() if not k.startswith("open")
+    )
     lines.append(f"timings         {timings}")
     lines.append("")
     lines.append("files           handeye.json, samples.json, captures/, report/report.md")
@@ -149,6 +179,18 @@ def write_offline_report(folder: Path, result: HandEyeResult, summary: list[str]
     pictures = _plots(folder, result, [], None)
     text = "\n".join(summary) + "\n"
     (folder / "summary.txt").write_text(text)
-    (folder / "report.md").write_text("\n".join(["# Hand-eye calibration report", "", "```", text.rstrip(), "```",
-                                                 "", *[f"![{p[:-4]}]({p})" for p in pictures]]) + "\n")
+    (folder / "report.md").write_text(
+        "\n".join(
+            [
+                "# Hand-eye calibration report",
+                "",
+                "```",
+                text.rstrip(),
+                "```",
+                "",
+                *[f"![{p[:-4]}]({p})" for p in pictures],
+            ]
+        )
+        + "\n"
+    )
     return ["summary.txt", "report.md", *pictures]

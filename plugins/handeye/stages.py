@@ -18,7 +18,6 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field
-
 from weldcell.plugins.handeye.calibrate import calibrate
 from weldcell.plugins.handeye.circle import ransac_circle
 from weldcell.plugins.handeye.flange_model import ISO9409_1, iso9409_model, load_flange_model
@@ -40,16 +39,22 @@ from weldcell.sdk.units import Length
 IsoSize = Literal[31.5, 40.0, 50.0, 63.0, 80.0, 100.0]
 Vec3 = tuple[Length, Length, Length]
 
+
 class FlangeSettings(Settings):
     """Flange-based hand-eye calibration (paper 003 §2.1.3-2.1.4, §3, Algorithm 1)."""
 
     method: Literal["flange", "flange-svd", "flange-iterative"] = Field(
-        "flange", description="final fit: 'flange' (outlier-proof, eqs. 10-12 on the inliers), 'flange-svd' "
-        "(eqs. 9-12 on all samples) or 'flange-iterative' (Algorithm 1's 4-pair pool)")
+        "flange",
+        description="final fit: 'flange' (outlier-proof, eqs. 10-12 on the inliers), 'flange-svd' "
+        "(eqs. 9-12 on all samples) or 'flange-iterative' (Algorithm 1's 4-pair pool)",
+    )
     feature: Vec3 = Field((0.0, 0.0, 0.0), description="the circle centre in the flange frame (the TCP) [m]")
     flange_d1: IsoSize = Field(50.0, description="ISO 9409-1 pitch circle d1 [mm] (50: UR, Franka, AUBO)")
-    flange_model: str | None = Field(None, description="flange CAD (STL) or cloud (PCD/PLY) for the ICP metric; "
-                                     "default: the ISO 9409-1 plate of flange_d1")
+    flange_model: str | None = Field(
+        None,
+        description="flange CAD (STL) or cloud (PCD/PLY) for the ICP metric; "
+        "default: the ISO 9409-1 plate of flange_d1",
+    )
     flange_model_units: Literal["mm", "m"] = Field("mm", description="units of flange_model")
     # segmentation (§2.1.4)
     box_min: Vec3 | None = Field(None, description="pass-through box, lower corner, camera frame [m]")
@@ -57,30 +62,46 @@ class FlangeSettings(Settings):
     voxel: Length = Field(0.001, gt=0, description="voxel of the clustering copy [m]")
     cluster_eps: Length = Field(0.004, gt=0, description="Euclidean cluster distance [m]")
     plane_distance: Length = Field(0.001, gt=0, description="flange face plane inlier distance [m]")
-    max_planes: int = Field(5, ge=1, le=20, description="planes peeled off to separate the face from the link")
+    max_planes: int = Field(
+        5, ge=1, le=20, description="planes peeled off to separate the face from the link"
+    )
     track_radius: Length | None = Field(
-        0.08, gt=0, description="once an estimate exists, keep points this close to the predicted flange [m]")
+        0.08, gt=0, description="once an estimate exists, keep points this close to the predicted flange [m]"
+    )
     # RANSAC circle (§3.2.2)
-    radius: Length | None = Field(None, gt=0, description="circle radius R [m]; default d3/2 - 0.5 mm (31 mm "
-                                  "for d1 = 50, the paper's value)")
+    radius: Length | None = Field(
+        None,
+        gt=0,
+        description="circle radius R [m]; default d3/2 - 0.5 mm (31 mm for d1 = 50, the paper's value)",
+    )
     e_d: Length = Field(0.0003, gt=0, description="circle inlier distance e_d [m]")
     e_r: Length = Field(0.001, gt=0, description="radius tolerance e_r [m]")
     circle_k_max: int = Field(10_000, ge=10, description="RANSAC hypotheses k_max")
     # fit and diagnostics
-    inlier_threshold: Length | None = Field(None, gt=0, description="fixed inlier residual [m]; default robust")
+    inlier_threshold: Length | None = Field(
+        None, gt=0, description="fixed inlier residual [m]; default robust"
+    )
     n_sigma: float = Field(3.0, gt=0, description="inlier threshold in robust sigmas")
     min_threshold: Length = Field(0.0003, ge=0, description="floor of the robust inlier threshold [m]")
     allow_coplanar: bool = Field(False, description="accept flange positions on one plane (with a warning)")
     bootstrap: int = Field(100, ge=0, description="bootstrap resamples for the confidence (0 = off)")
     # Algorithm 1
     verifier: Literal["icp", "consensus"] = Field(
-        "icp", description="Algorithm 1 error: 'icp' (eq. 13 on a verification scan) or 'consensus'")
-    cost: Literal["translation", "radius"] = Field("translation", description="cost of e: ||dt|| (§3.1) or "
-                                                    "the work-radius metric (§4.2)")
+        "icp", description="Algorithm 1 error: 'icp' (eq. 13 on a verification scan) or 'consensus'"
+    )
+    cost: Literal["translation", "radius"] = Field(
+        "translation", description="cost of e: ||dt|| (§3.1) or the work-radius metric (§4.2)"
+    )
     work_radius: Length = Field(0.3, gt=0, description="work radius r of the §4.2 cost [m]")
-    e_required: Length = Field(0.0005, ge=0, description="Algorithm 1 stops once the cost is this low")
+    e_required: Length | None = Field(
+        None,
+        ge=0,
+        description="Algorithm 1 stops once the cost is this low [m]; default 0.5 mm with the ICP metric, "
+        "0 (use every pair) with the consensus verifier, whose cost is ~0 on the first pairs",
+    )
     pool_k_max: int = Field(10_000, ge=0, description="Algorithm 1 iteration limit k_max")
     compensate: bool = Field(False, description="apply eq. 21 (H @ e_optimal) to Algorithm 1's result")
+
 
 @dataclass
 class FlangeMeasurement:
@@ -91,6 +112,7 @@ class FlangeMeasurement:
     normal: np.ndarray
     face: np.ndarray
     report: dict = field(default_factory=dict)
+
 
 class IncrementalPool:
     """Algorithm 1 fed one point pair at a time (the online form of
@@ -142,7 +164,7 @@ class IncrementalPool:
             self.cost = self.cost_fn(self.e)
         elif self.cost > self.e_required and self.k <= self.k_max:  # steps 5-15 for the new pair
             new = n - 1
-            cand = np.array([self.pool[:i] + [new] + self.pool[i + 1:] for i in range(self.pool_size)])
+            cand = np.array([self.pool[:i] + [new] + self.pool[i + 1 :] for i in range(self.pool_size)])
             Hs = rigid_fit_batch(S[cand], D[cand])
             es = [verify(Hc) for Hc in Hs]
             costs = np.array([self.cost_fn(ec) for ec in es])
@@ -158,6 +180,7 @@ class IncrementalPool:
         self.history.append(self.cost)
         return self.cost
 
+
 class _Consensus:
     moves_with_data = True
 
@@ -166,6 +189,7 @@ class _Consensus:
 
     def __call__(self, H: np.ndarray):
         return self.v(H)
+
 
 class FlangeHandEye:
     """The ``handeye.flange`` stage: measures flange centres in scans and solves the hand-eye."""
@@ -193,12 +217,22 @@ class FlangeHandEye:
         return iso9409_model(float(self.s.flange_d1), spacing=0.001, rim_depth=0.002)
 
     def segment_settings(self) -> SegmentSettings:
-        return SegmentSettings(box_min=self.s.box_min, box_max=self.s.box_max, voxel=self.s.voxel,
-                               cluster_eps=self.s.cluster_eps, flange_diameter=self.d3,
-                               plane_distance=self.s.plane_distance)
+        return SegmentSettings(
+            box_min=self.s.box_min,
+            box_max=self.s.box_max,
+            voxel=self.s.voxel,
+            cluster_eps=self.s.cluster_eps,
+            flange_diameter=self.d3,
+            plane_distance=self.s.plane_distance,
+        )
 
     def circle_settings(self) -> dict:
-        return {"radius": self.circle_radius, "e_d": self.s.e_d, "e_r": self.s.e_r, "k_max": self.s.circle_k_max}
+        return {
+            "radius": self.circle_radius,
+            "e_d": self.s.e_d,
+            "e_r": self.s.e_r,
+            "k_max": self.s.circle_k_max,
+        }
 
     # -- measuring -------------------------------------------------------------------------------
     def crop(self, points: np.ndarray, predicted: np.ndarray | None = None) -> np.ndarray:
@@ -251,8 +285,10 @@ class FlangeHandEye:
         the current estimate expects it (crops the scan). Raises DataError when no flange is found."""
         P = self.crop(points, predicted)
         if len(P) < 50:
-            raise DataError(f"no flange found: only {len(P)} points inside the pass-through box",
-                            "check the flange is in view and in range, and [stages.handeye] box_min/box_max")
+            raise DataError(
+                f"no flange found: only {len(P)} points inside the pass-through box",
+                "check the flange is in view and in range, and [stages.handeye] box_min/box_max",
+            )
         face, report = self.segment(P)
         circ = ransac_circle(face, rng=seed, **self.circle_settings())
         report.update(radius=circ.radius, circle_rms=circ.rms, support=circ.stats["support"])
@@ -265,7 +301,6 @@ class FlangeHandEye:
         holes + the pin hole: one angle only fits), taken at the middle of the best plateau, then
         refined by point-to-point ICP of the face model within 1 mm."""
         import open3d as o3d
-
         from weldcell.plugins.handeye.flange_model import iso9409_dimensions
 
         z = np.asarray(m.normal, float)
@@ -300,12 +335,18 @@ class FlangeHandEye:
         face_model = self.model[np.abs(self.model[:, 2]) < 1e-9]
         reg = o3d.pipelines.registration.registration_icp(
             o3d.geometry.PointCloud(o3d.utility.Vector3dVector(face_model)),
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face)), 0.001, T0,
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face)),
+            0.001,
+            T0,
             o3d.pipelines.registration.TransformationEstimationPointToPoint(),
-            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30))
+            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30),
+        )
         T = np.asarray(reg.transformation)
-        m.report["pose"] = {"holes_violated": int(inside.min()), "icp_fitness": float(reg.fitness),
-                            "icp_rmse": float(reg.inlier_rmse)}
+        m.report["pose"] = {
+            "holes_violated": int(inside.min()),
+            "icp_fitness": float(reg.fitness),
+            "icp_rmse": float(reg.inlier_rmse),
+        }
         return T if reg.fitness > 0.5 else T0
 
     # -- solving ---------------------------------------------------------------------------------
@@ -318,16 +359,25 @@ class FlangeHandEye:
             "n_sigma": self.s.n_sigma,
             "min_threshold": self.s.min_threshold,
             "circle": self.circle_settings(),
-            "segment": {k: v for k, v in self.segment_settings().__dict__.items()
-                        if v != getattr(SegmentSettings(), k)},
+            "segment": {
+                k: v
+                for k, v in self.segment_settings().__dict__.items()
+                if v != getattr(SegmentSettings(), k)
+            },
             "verifier": self.s.verifier,
             "cost": self.s.cost,
             "work_radius": self.s.work_radius,
-            "e_required": self.s.e_required,
+            "e_required": self.e_required,
             "k_max": self.s.pool_k_max,
             "compensate": self.s.compensate,
             "bootstrap": self.s.bootstrap,
         }
+
+    @property
+    def e_required(self) -> float:
+        if self.s.e_required is not None:
+            return self.s.e_required
+        return 0.0005 if self.s.verifier == "icp" else 0.0
 
     def cost_function(self):
         return translation_cost if self.s.cost == "translation" else radius_cost(self.s.work_radius)
@@ -337,25 +387,34 @@ class FlangeHandEye:
         model = self.model - np.asarray(self.s.feature, float)
         return IcpVerifier(model, np.asarray(T_base_flange_v, float), np.asarray(cloud_v, float))
 
-    def pool(self, verification: tuple[np.ndarray, np.ndarray] | None = None,
-             verifier: str | None = None) -> IncrementalPool:
+    def pool(
+        self, verification: tuple[np.ndarray, np.ndarray] | None = None, verifier: str | None = None
+    ) -> IncrementalPool:
         """A fresh online Algorithm 1 (``verification`` = (face cloud, T_base_flange) for 'icp');
         ``verifier`` overrides the setting."""
+        e_req = self.e_required if (verifier or self.s.verifier) == self.s.verifier else 0.0
         if (verifier or self.s.verifier) == "icp":
             if verification is None:
-                raise UsageError("Algorithm 1 with the ICP metric needs a verification scan and its pose",
-                                 "take a verification scan first, or set verifier = 'consensus'")
+                raise UsageError(
+                    "Algorithm 1 with the ICP metric needs a verification scan and its pose",
+                    "take a verification scan first, or set verifier = 'consensus'",
+                )
             v = self.icp_verifier(*verification)
 
             def make(src, dst):
                 return v
         else:
             make = _Consensus
-        return IncrementalPool(make, self.cost_function(), self.s.e_required, self.s.pool_k_max)
+        return IncrementalPool(make, self.cost_function(), e_req, self.s.pool_k_max)
 
-    def solve(self, samples: list[HandEyeSample], config: str = "eye-on-base",
-              verification: tuple[np.ndarray, np.ndarray] | None = None, method: str | None = None,
-              **extra) -> HandEyeResult:
+    def solve(
+        self,
+        samples: list[HandEyeSample],
+        config: str = "eye-on-base",
+        verification: tuple[np.ndarray, np.ndarray] | None = None,
+        method: str | None = None,
+        **extra,
+    ) -> HandEyeResult:
         """:func:`calibrate` with this stage's settings. Samples carry ``p_cam`` (or clouds)."""
         kw = self.calibrate_settings()
         method = method or self.s.method
@@ -367,20 +426,30 @@ class FlangeHandEye:
         kw.update(extra)
         return calibrate(samples, config, method=method, **kw)
 
+
 class ClassicalSettings(Settings):
     """Target-based hand-eye (AX=XB: Tsai, Park, Horaud, Andreff, Daniilidis; AX=YB: Shah, Li)."""
 
     method: Literal["tsai", "park", "horaud", "andreff", "daniilidis", "shah", "li"] = Field(
-        "park", description="solver")
-    backend: Literal["auto", "opencv", "numpy"] = Field("auto", description="OpenCV when it has the solver, "
-                                                        "else the numpy implementation")
-    board: dict = Field(default_factory=dict, description="board for photos: kind, squares_x, squares_y, square "
-                        "[m], marker [m], separation [m], dictionary (see board.BoardSpec)")
-    intrinsics: str | None = Field(None, description="OpenCV YAML with camera_matrix and "
-                                   "distortion_coefficients (for board photos)")
+        "park", description="solver"
+    )
+    backend: Literal["auto", "opencv", "numpy"] = Field(
+        "auto", description="OpenCV when it has the solver, else the numpy implementation"
+    )
+    board: dict = Field(
+        default_factory=dict,
+        description="board for photos: kind, squares_x, squares_y, square "
+        "[m], marker [m], separation [m], dictionary (see board.BoardSpec)",
+    )
+    intrinsics: str | None = Field(
+        None, description="OpenCV YAML with camera_matrix and distortion_coefficients (for board photos)"
+    )
     bootstrap: int = Field(50, ge=0, description="bootstrap resamples for the confidence (0 = off)")
-    flange: FlangeSettings = Field(default_factory=FlangeSettings, description="online: how the flange pose "
-                                   "is measured in the scans (it is the target)")
+    flange: FlangeSettings = Field(
+        default_factory=FlangeSettings,
+        description="online: how the flange pose is measured in the scans (it is the target)",
+    )
+
 
 class ClassicalHandEye:
     """The ``handeye.opencv`` stage: classical solvers on board poses, board photos, or (online) the
@@ -406,10 +475,17 @@ class ClassicalHandEye:
             kw["intrinsics"] = read_intrinsics(Path(self.s.intrinsics))
         return kw
 
-    def solve(self, samples: list[HandEyeSample], config: str = "eye-on-base", verification=None,
-              method: str | None = None, **extra) -> HandEyeResult:
+    def solve(
+        self,
+        samples: list[HandEyeSample],
+        config: str = "eye-on-base",
+        verification=None,
+        method: str | None = None,
+        **extra,
+    ) -> HandEyeResult:
         kw = {**self.calibrate_settings(), **extra}
         return calibrate(samples, config, method=method or self.s.method, **kw)
+
 
 def predicted_p_cam(T_base_camera: np.ndarray, T_base_flange: np.ndarray, feature) -> np.ndarray:
     """Where the feature should appear in the camera under an estimate (eye-on-base)."""

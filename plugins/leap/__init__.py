@@ -29,8 +29,10 @@ def probe(settings) -> str:
         except TransportTimeout:
             first = {}
     except DeviceError as e:
-        raise DeviceError(f"Leap service not reachable at {settings.url}: {e.message}",
-                          "start the Leap service with 'Allow Web Apps' enabled") from None
+        raise DeviceError(
+            f"Leap service not reachable at {settings.url}: {e.message}",
+            "start the Leap service with 'Allow Web Apps' enabled",
+        ) from None
     finally:
         ws.close()
     version = first.get("serviceVersion") if isinstance(first, dict) else None
@@ -41,5 +43,14 @@ def probe(settings) -> str:
 def weldcell_register_devices(register):
     from weldcell.plugins.leap.settings import LeapSettings
 
-    register(DeviceSpec(name=NAME, kind="gesture_sensor", summary="Leap Motion hand tracker (WebSocket service v6)",
-                        settings=LeapSettings, factory=_factory, probe=probe, requires={"websockets": "leap"}))
+    register(
+        DeviceSpec(
+            name=NAME,
+            kind="gesture_sensor",
+            summary="Leap Motion hand tracker (WebSocket service v6)",
+            settings=LeapSettings,
+            factory=_factory,
+            probe=probe,
+            requires={"websockets": "leap"},
+        )
+    )

@@ -15,7 +15,6 @@ import threading
 import time
 
 import websockets  # noqa: F401 - the vendor library (extra "leap"); the transport uses its sync client
-
 from weldcell.hal.interfaces import GestureSensor
 from weldcell.hal.readings import HandsFrame
 from weldcell.hal.transports import Backoff, TransportClosed, TransportTimeout, WebSocketTransport
@@ -25,20 +24,27 @@ from weldcell.sdk.errors import DataError, DeviceError
 
 log = logging.getLogger("weldcell.leap")
 
-_FIX = ("check that the Leap service (LeapControlPanel / leapd) runs with 'Allow Web Apps' enabled and the "
-        "sensor is plugged in")
+_FIX = (
+    "check that the Leap service (LeapControlPanel / leapd) runs with 'Allow Web Apps' enabled and the "
+    "sensor is plugged in"
+)
 
 
 class LeapMotion(GestureSensor):
     """A Leap Motion controller (device ``gesture.leap``). Hands in metres, Leap frame (y up)."""
 
-    def __init__(self, settings: LeapSettings | None = None, name: str = "gesture", frame: str | None = None) -> None:
+    def __init__(
+        self, settings: LeapSettings | None = None, name: str = "gesture", frame: str | None = None
+    ) -> None:
         super().__init__(name, frame=frame or name)
         self.settings = settings or LeapSettings()
         s = self.settings
         self.transport = WebSocketTransport(
-            s.url, timeout=s.frame_timeout, open_timeout=s.open_timeout,
-            backoff=Backoff(attempts=s.reconnect_attempts, initial=s.reconnect_delay, max_delay=1.0))
+            s.url,
+            timeout=s.frame_timeout,
+            open_timeout=s.open_timeout,
+            backoff=Backoff(attempts=s.reconnect_attempts, initial=s.reconnect_delay, max_delay=1.0),
+        )
         self.service_version: dict | None = None
         self.reconnects = 0
         self._cond = threading.Condition()
@@ -62,14 +68,20 @@ class LeapMotion(GestureSensor):
             self.service_version = first
         elif is_frame(first):
             self._publish(first)
-        for msg in ({"enableGestures": s.enable_gestures}, {"background": s.background}, {"focused": s.focused}):
+        for msg in (
+            {"enableGestures": s.enable_gestures},
+            {"background": s.background},
+            {"focused": s.focused},
+        ):
             self.transport.send(json.dumps(msg))
 
     def on_configure(self) -> None:
         try:
             self.transport.open()
         except TransportClosed as e:
-            raise DeviceError(f"Leap service not reachable at {self.settings.url}: {e.message}", _FIX) from None
+            raise DeviceError(
+                f"Leap service not reachable at {self.settings.url}: {e.message}", _FIX
+            ) from None
         self._hello()
 
     def on_activate(self) -> None:
@@ -130,9 +142,13 @@ class LeapMotion(GestureSensor):
                 except DataError as e:
                     log.warning("skipping a malformed frame: %s", e.message)
 
+    def _fault(self, message: str) -> DeviceError:
+        e = self.fault(message)
+        return DeviceError(e.message, _FIX + "; then recover() and configure() again")
+
     # -- readings --------------------------------------------------------------------------------
     def _read(self, timeout: float) -> HandsFrame:
-        """The newest frame not returned before; waits up to ``timeout`` (at most ``frame_timeout``) for it."""
+        """The newest frame not returned before, waiting up to ``timeout`` (at most ``frame_timeout``)."""
         wait = min(timeout, self.settings.frame_timeout) if timeout > 0 else self.settings.frame_timeout
         deadline = time.monotonic() + wait
         with self._cond:
@@ -142,8 +158,8 @@ class LeapMotion(GestureSensor):
                     break
                 self._cond.wait(left)
             if self._failure is not None:
-                raise self.fault(self._failure)
+                raise self._fault(self._failure)
             if self._latest is None or self._count == self._returned:
-                raise self.fault(f"no frame from the Leap service within {wait:.3g} s")
+                raise self._fault(f"no frame from the Leap service within {wait:.3g} s")
             self._returned = self._count
             return self._latest

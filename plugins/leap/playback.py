@@ -22,7 +22,7 @@ def _unpack(structure: list, values: list) -> dict:
         if isinstance(key, str):
             out[key] = val
         elif isinstance(key, dict):
-            (name, sub), = key.items()
+            ((name, sub),) = key.items()
             if sub and isinstance(sub[0], list):
                 out[name] = [_unpack(sub[0], v) for v in (val or [])]
             else:
@@ -37,14 +37,18 @@ def unpack_frames(data: Any) -> list[dict]:
         frames = data["frames"]
         if meta.get("formatVersion") == 2:
             if not frames or not isinstance(frames[0], list):
-                raise DataError("packed Leap recording without a packing structure", "re-export the recording")
+                raise DataError(
+                    "packed Leap recording without a packing structure", "re-export the recording"
+                )
             structure = frames[0]
             return [_unpack(structure, f) for f in frames[1:]]
     elif isinstance(data, list):
         frames = data
     else:
-        raise DataError("not a Leap recording (expected a list of frames or {'frames': [...]})",
-                        "give a leapjs-playback recording or a list of v6 JSON frames")
+        raise DataError(
+            "not a Leap recording (expected a list of frames or {'frames': [...]})",
+            "give a leapjs-playback recording or a list of v6 JSON frames",
+        )
     out = []
     for f in frames:
         if isinstance(f, list) and len(f) == 1 and isinstance(f[0], dict):

@@ -10,7 +10,6 @@ the user); weldcell readings are metres in the same axes.
 from __future__ import annotations
 
 import numpy as np
-
 from weldcell.hal.readings import Hand, HandsFrame, InteractionBox
 from weldcell.sdk.errors import DataError
 
@@ -46,7 +45,9 @@ def hand_from_json(h: dict, pointables: list[dict]) -> Hand:
     """One hand, with its fingertips from the pointables whose ``handId`` is the hand's id."""
     side = h.get("type")
     if side not in ("left", "right"):
-        raise DataError(f"Leap hand has type {side!r}, expected 'left' or 'right'", "check the protocol version")
+        raise DataError(
+            f"Leap hand has type {side!r}, expected 'left' or 'right'", "check the protocol version"
+        )
     tips: dict[str, np.ndarray] = {}
     ext: dict[str, bool] = {}
     for p in pointables:
@@ -58,11 +59,18 @@ def hand_from_json(h: dict, pointables: list[dict]) -> Hand:
         tips[FINGERS[k]] = _vec(p["tipPosition"], "tipPosition") * MM
         if "extended" in p:
             ext[FINGERS[k]] = bool(p["extended"])
-    return Hand(side=side, palm_position=_vec(h["palmPosition"], "palmPosition") * MM,
-                palm_normal=_unit(h["palmNormal"], "palmNormal"), direction=_unit(h["direction"], "direction"),
-                grab_strength=float(h.get("grabStrength", 0.0)), pinch_strength=float(h.get("pinchStrength", 0.0)),
-                fingertips=tips, extended=ext, confidence=float(h.get("confidence", 1.0)),
-                time_visible=float(h.get("timeVisible", 0.0)))
+    return Hand(
+        side=side,
+        palm_position=_vec(h["palmPosition"], "palmPosition") * MM,
+        palm_normal=_unit(h["palmNormal"], "palmNormal"),
+        direction=_unit(h["direction"], "direction"),
+        grab_strength=float(h.get("grabStrength", 0.0)),
+        pinch_strength=float(h.get("pinchStrength", 0.0)),
+        fingertips=tips,
+        extended=ext,
+        confidence=float(h.get("confidence", 1.0)),
+        time_visible=float(h.get("timeVisible", 0.0)),
+    )
 
 
 def is_frame(msg: dict) -> bool:
@@ -79,6 +87,8 @@ def frame_from_json(msg: dict, stamp: float, frame: str = "gesture") -> HandsFra
     box = None
     ib = msg.get("interactionBox")
     if ib:
-        box = InteractionBox(center=_vec(ib["center"], "interactionBox.center") * MM,
-                             size=_vec(ib["size"], "interactionBox.size") * MM)
+        box = InteractionBox(
+            center=_vec(ib["center"], "interactionBox.center") * MM,
+            size=_vec(ib["size"], "interactionBox.size") * MM,
+        )
     return HandsFrame(stamp=stamp, hands=hands, frame_id=int(msg["id"]), interaction_box=box, frame=frame)

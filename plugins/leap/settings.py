@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pydantic import Field
-
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Duration
 
@@ -18,4 +17,6 @@ class LeapSettings(Settings):
     open_timeout: Duration = Field(2.0, gt=0, description="WebSocket connect timeout [s]")
     frame_timeout: Duration = Field(1.0, gt=0, description="no frame for this long is a fault [s]")
     reconnect_attempts: int = Field(5, ge=1, description="reconnect tries after the service drops us")
-    reconnect_delay: Duration = Field(0.05, gt=0, description="first wait between reconnect tries [s] (doubles)")
+    reconnect_delay: Duration = Field(
+        0.05, gt=0, description="first wait between reconnect tries [s] (doubles)"
+    )

@@ -30,7 +30,9 @@ def probe(settings) -> str:
 
     if settings.recording:
         if not Path(settings.recording).is_file():
-            raise DeviceError(f"recording {settings.recording} does not exist", "give the path of a .bag/.db3 file")
+            raise DeviceError(
+                f"recording {settings.recording} does not exist", "give the path of a .bag/.db3 file"
+            )
         return f"recording {settings.recording}"
     from weldcell.plugins.realsense.adapter import connected_cameras
 
@@ -38,8 +40,10 @@ def probe(settings) -> str:
     if not cams:
         raise DeviceError("no RealSense camera is connected", "plug the camera into a USB 3 port")
     if settings.serial and settings.serial not in cams:
-        raise DeviceError(f"no RealSense with serial {settings.serial}; connected: {', '.join(cams)}",
-                          "set serial to one of the connected cameras")
+        raise DeviceError(
+            f"no RealSense with serial {settings.serial}; connected: {', '.join(cams)}",
+            "set serial to one of the connected cameras",
+        )
     return ", ".join(f"{name} #{serial}" for serial, name in cams.items())
 
 
@@ -47,6 +51,14 @@ def probe(settings) -> str:
 def weldcell_register_devices(register):
     from weldcell.plugins.realsense.settings import RealSenseSettings
 
-    register(DeviceSpec(name=NAME, kind="depth_camera", summary="Intel RealSense D400 depth camera (pyrealsense2)",
-                        settings=RealSenseSettings, factory=_factory, probe=probe,
-                        requires={"pyrealsense2": "realsense"}))
+    register(
+        DeviceSpec(
+            name=NAME,
+            kind="depth_camera",
+            summary="Intel RealSense D400 depth camera (pyrealsense2)",
+            settings=RealSenseSettings,
+            factory=_factory,
+            probe=probe,
+            requires={"pyrealsense2": "realsense"},
+        )
+    )

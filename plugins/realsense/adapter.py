@@ -13,15 +13,16 @@ from pathlib import Path
 
 import numpy as np
 import pyrealsense2 as rs
-
 from weldcell.hal.interfaces import DepthCamera
 from weldcell.hal.readings import DepthFrame, Intrinsics
 from weldcell.plugins.realsense.settings import RealSenseSettings
 from weldcell.sdk.errors import DeviceError
 
 _PRESETS = {"custom": 0, "default": 1, "hand": 2, "high_accuracy": 3, "high_density": 4, "medium_density": 5}
-_USB_FIX = ("check the USB 3 cable and port (a USB 2 link cannot carry these streams), that no other program "
-            "holds the camera, and the resolution/fps pair is supported")
+_USB_FIX = (
+    "check the USB 3 cable and port (a USB 2 link cannot carry these streams), that no other program "
+    "holds the camera, and the resolution/fps pair is supported"
+)
 
 
 def connected_cameras(ctx) -> dict[str, str]:
@@ -37,8 +38,15 @@ def connected_cameras(ctx) -> dict[str, str]:
 
 def to_intrinsics(i) -> Intrinsics:
     """weldcell intrinsics from ``rs.intrinsics`` (coefficients in the Brown-Conrady order k1 k2 p1 p2 k3)."""
-    return Intrinsics(int(i.width), int(i.height), float(i.fx), float(i.fy), float(i.ppx), float(i.ppy),
-                      tuple(float(c) for c in i.coeffs))
+    return Intrinsics(
+        int(i.width),
+        int(i.height),
+        float(i.fx),
+        float(i.fy),
+        float(i.ppx),
+        float(i.ppy),
+        tuple(float(c) for c in i.coeffs),
+    )
 
 
 class RealSenseCamera(DepthCamera):
@@ -48,8 +56,14 @@ class RealSenseCamera(DepthCamera):
     injected ``rs.device`` (e.g. an ``rs.software_device``) through an ``rs.syncer`` instead of a pipeline.
     """
 
-    def __init__(self, settings: RealSenseSettings | None = None, name: str = "camera", frame: str | None = None,
-                 context=None, device=None) -> None:
+    def __init__(
+        self,
+        settings: RealSenseSettings | None = None,
+        name: str = "camera",
+        frame: str | None = None,
+        context=None,
+        device=None,
+    ) -> None:
         super().__init__(name, frame=frame or f"{name}.optical")
         self.settings = settings or RealSenseSettings()
         self._ctx = context
@@ -70,7 +84,9 @@ class RealSenseCamera(DepthCamera):
     def on_configure(self) -> None:
         s = self.settings
         if s.align_to_color and not s.color:
-            raise DeviceError("align_to_color needs the colour stream", "set color = true or align_to_color = false")
+            raise DeviceError(
+                "align_to_color needs the colour stream", "set color = true or align_to_color = false"
+            )
         if self._device is not None:
             self._configure_injected()
         else:
@@ -84,19 +100,25 @@ class RealSenseCamera(DepthCamera):
         if s.recording:
             path = Path(s.recording)
             if not path.is_file():
-                raise DeviceError(f"recording {path} does not exist", "give the path of a .bag/.db3 recording")
+                raise DeviceError(
+                    f"recording {path} does not exist", "give the path of a .bag/.db3 recording"
+                )
             cfg.enable_device_from_file(str(path), repeat_playback=s.playback_repeat)
         else:
             cams = connected_cameras(ctx)
             if s.serial and s.serial not in cams:
                 listed = ", ".join(f"{k} ({v})" for k, v in cams.items()) or "none"
-                raise DeviceError(f"no RealSense with serial {s.serial} is connected (connected: {listed})",
-                                  "set serial to one of the connected cameras, or plug the camera in")
+                raise DeviceError(
+                    f"no RealSense with serial {s.serial} is connected (connected: {listed})",
+                    "set serial to one of the connected cameras, or plug the camera in",
+                )
             if not cams:
                 raise DeviceError("no RealSense camera is connected", _USB_FIX)
             if not s.serial and len(cams) > 1:
-                raise DeviceError(f"{len(cams)} RealSense cameras are connected ({', '.join(cams)})",
-                                  "set serial to the one to use")
+                raise DeviceError(
+                    f"{len(cams)} RealSense cameras are connected ({', '.join(cams)})",
+                    "set serial to the one to use",
+                )
             cfg.enable_device(s.serial or next(iter(cams)))
         if not s.recording:
             cfg.enable_stream(rs.stream.depth, s.depth_width, s.depth_height, rs.format.z16, s.depth_fps)
@@ -133,8 +155,10 @@ class RealSenseCamera(DepthCamera):
                     if p.stream_type() == stream and (v.width(), v.height(), p.fps()) == (w, h, fps):
                         found = (sensor, p)
             if found is None:
-                raise DeviceError(f"the device has no {stream} stream {w}x{h} @ {fps} fps",
-                                  "choose a resolution/fps the device offers")
+                raise DeviceError(
+                    f"the device has no {stream} stream {w}x{h} @ {fps} fps",
+                    "choose a resolution/fps the device offers",
+                )
             self._open_sensors.append(found)
         depth_sensor = self._open_sensors[0][0]
         self._depth_profile = self._open_sensors[0][1].as_video_stream_profile()
@@ -153,19 +177,27 @@ class RealSenseCamera(DepthCamera):
             opts.append((rs.option.laser_power, float(s.laser_power), "laser_power"))
         for opt, value, what in opts:
             if not sensor.supports(opt):
-                raise DeviceError(f"this camera's depth sensor has no {what} option",
-                                  f"remove {what.split()[0]} from the camera settings")
+                raise DeviceError(
+                    f"this camera's depth sensor has no {what} option",
+                    f"remove {what.split()[0]} from the camera settings",
+                )
             r = sensor.get_option_range(opt)
             if not (r.min - 1e-9 <= value <= r.max + 1e-9):
-                raise DeviceError(f"{what} = {value:g} is outside the camera's range [{r.min:g}, {r.max:g}]",
-                                  "choose a value inside the range")
+                raise DeviceError(
+                    f"{what} = {value:g} is outside the camera's range [{r.min:g}, {r.max:g}]",
+                    "choose a value inside the range",
+                )
             if r.step > 0 and abs((value - r.min) / r.step - round((value - r.min) / r.step)) > 1e-6:
-                raise DeviceError(f"{what} = {value:g} is not on the camera's grid ({r.min:g} + k * {r.step:g})",
-                                  f"use a multiple of {r.step:g} from {r.min:g}")
+                raise DeviceError(
+                    f"{what} = {value:g} is not on the camera's grid ({r.min:g} + k * {r.step:g})",
+                    f"use a multiple of {r.step:g} from {r.min:g}",
+                )
             try:
                 sensor.set_option(opt, value)
             except RuntimeError as e:
-                raise DeviceError(f"the camera refused {what} = {value:g}: {e}", "choose another value") from e
+                raise DeviceError(
+                    f"the camera refused {what} = {value:g}: {e}", "choose another value"
+                ) from e
 
     def _build_processing(self) -> None:
         s = self.settings
@@ -273,11 +305,19 @@ class RealSenseCamera(DepthCamera):
         c = fs.get_color_frame() if self.settings.color else None
         if c:
             color = np.asanyarray(c.get_data()).copy()
-        meta = {"frame_number": int(depth.get_frame_number()), "device_timestamp_ms": float(depth.get_timestamp()),
-                "depth_scale": self._scale, "aligned_to_color": self._align is not None}
-        return DepthFrame(stamp=stamp, depth=z, intrinsics=self._intr, frame=self.frame, color=color, meta=meta)
+        meta = {
+            "frame_number": int(depth.get_frame_number()),
+            "device_timestamp_ms": float(depth.get_timestamp()),
+            "depth_scale": self._scale,
+            "aligned_to_color": self._align is not None,
+        }
+        return DepthFrame(
+            stamp=stamp, depth=z, intrinsics=self._intr, frame=self.frame, color=color, meta=meta
+        )
 
     def _intrinsics(self) -> Intrinsics:
         if self._intr is None:
-            raise DeviceError(f"camera '{self.name}' has no intrinsics before configure()", "configure() it first")
+            raise DeviceError(
+                f"camera '{self.name}' has no intrinsics before configure()", "configure() it first"
+            )
         return self._intr

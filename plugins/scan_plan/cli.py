@@ -461,7 +461,7 @@ def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mo
         cropped = crop_views(data.scans, T_fc, lo, hi)
         if not cropped:
             raise DataError("no scan has points inside the region of interest",
-                            "check --roi-min / --roi-max (metres, robot base frame) against where the part is")
+                            "check --roi-min / --roi-max (metres, robot base frame) against the part")
         views, names = [v for _, v in cropped], [data.names[i] for i, _ in cropped]
         fmt = lambda c: "-" if c is None else "(" + ", ".join(f"{v * 1000:.0f}" for v in c) + ") mm"  # noqa: E731
         click.echo(f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "

@@ -15,10 +15,9 @@ import numpy as np
 from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, rotation_angle
-
-from .denoise import as_points, pca_normals, voxel_downsample
 from weldcell.sdk.scan import PosedScan  # noqa: F401  (re-exported: the scan type of this stage)
 
+from .denoise import as_points, pca_normals, voxel_downsample
 from .metrics import fitness
 from .registration import IcpResult, linear_icp
 

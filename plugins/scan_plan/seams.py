@@ -395,16 +395,19 @@ def _refine_on_sides(
     radius: float,
     min_crease_angle: float,
     k: int = 256,
+    min_side_fraction: float = 0.2,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Snap seam nodes onto the intersection line of the two side planes fitted around them.
 
     The planes are fitted to the (at most ``k`` nearest) cloud points within ``radius`` of each node.
     Returns the moved nodes, the approach ``-(n_a + n_b)/|.|`` of the fitted planes, a mask of the
-    nodes where the fit was usable (both sides populated, crease angle large enough) and the angle
-    between the two plane normals (pi minus the included angle of the joint)."""
+    nodes where the fit was usable and the angle between the two plane normals (pi minus the included
+    angle of the joint). Usable: the crease angle is at least ``min_crease_angle`` and both sides hold
+    at least ``min_side_fraction`` of the points (a real joint has surface on both sides; the curled,
+    noisy border of a scan has a few points only on its "second side")."""
     idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, k)
     na, da, nbv, db, ca, cb = fit_two_planes(P[idx], valid, na, nbv, in_a)
-    ok = (ca >= 3) & (cb >= 3)
+    ok = (ca >= 3) & (cb >= 3) & (np.minimum(ca, cb) >= min_side_fraction * (ca + cb))
     ok &= np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1, 1)) >= min_crease_angle
     A = np.stack([na, nbv], axis=1)  # (B, 2, 3)
     r = np.stack([np.einsum("ij,ij->i", na, X) - da, np.einsum("ij,ij->i", nbv, X) - db], axis=1)
@@ -441,8 +444,10 @@ def _trim_turning_ends(X: np.ndarray, max_turn: float = np.deg2rad(30.0), max_no
 
 def _orient(X: np.ndarray, A: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     """Deterministic travel direction: open seams along their principal axis (sign: largest component
-    positive); closed seams counter-clockwise seen from the torch (looking along the approach)."""
-    if closed:
+    positive); closed seams, and open ones that curl (end-to-end chord under half their length, e.g. a
+    ring with a gap), counter-clockwise seen from the torch (looking along the approach)."""
+    length = float(np.linalg.norm(np.diff(X, axis=0), axis=1).sum())
+    if closed or float(np.linalg.norm(X[-1] - X[0])) < 0.5 * length:
         c = X - X.mean(axis=0)
         area = 0.5 * np.cross(c, np.roll(c, -1, axis=0)).sum(axis=0)
         flip = float(area @ -A.mean(axis=0)) < 0
@@ -452,6 +457,27 @@ def _orient(X: np.ndarray, A: np.ndarray, closed: bool) -> tuple[np.ndarray, np.
         u = u * np.sign(u[np.argmax(np.abs(u))])
         flip = float((X[-1] - X[0]) @ u) < 0
     return (X[::-1].copy(), A[::-1].copy()) if flip else (X, A)
+
+
+def _refine_nodes(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    side_radius: float,
+    approach_radius: float,
+    min_crease_angle: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_refine_on_sides` at two scales: the approach, crease angle and the usable-node mask from
+    the side planes within ``approach_radius`` (large: many points, sub-degree normals; by symmetry the
+    bisector of two planes fitted to a curved wall is still the local one), the position from those
+    within ``side_radius`` where that fit is usable too (small: planes fitted to a strongly curved wall
+    over a large radius sit inside it and pull the intersection line inwards)."""
+    X2, A, ok, crease = _refine_on_sides(P, N, tree, X, approach_radius, min_crease_angle)
+    if approach_radius > side_radius:
+        Xs, _, ok_s, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle)
+        X2 = np.where((ok & ok_s)[:, None], Xs, X2)
+    return X2, A, ok, crease
 
 
 @dataclass
@@ -526,6 +552,7 @@ def bridge_pieces(
     min_crease_angle: float,
     max_approach_angle: float = np.deg2rad(45.0),
     min_support: float = 0.5,
+    approach_radius: float = 0.0,
 ) -> list[_Piece]:
     """Join open pieces whose ends are close and whose directions agree (gap bridging).
 
@@ -609,7 +636,9 @@ def bridge_pieces(
             if Xs:
                 Xg, Ag = _gap_nodes(Xs[-1][-1], Xc[0], As[-1][-1], Ac[0], spacing)
                 if len(Xg):
-                    Xg, Af, okg, crg = _refine_on_sides(P, N, tree, Xg, side_radius, min_crease_angle)
+                    Xg, Af, okg, crg = _refine_nodes(
+                        P, N, tree, Xg, side_radius, approach_radius, min_crease_angle
+                    )
                     Xs.append(Xg)
                     As.append(np.where(okg[:, None], Af, Ag))
                     oks.append(okg)
@@ -636,7 +665,9 @@ def bridge_pieces(
                 closed = True
                 Xg, Ag = _gap_nodes(X[-1], X[0], A[-1], A[0], spacing)
                 if len(Xg):
-                    Xg, Af, okg, crg = _refine_on_sides(P, N, tree, Xg, side_radius, min_crease_angle)
+                    Xg, Af, okg, crg = _refine_nodes(
+                        P, N, tree, Xg, side_radius, approach_radius, min_crease_angle
+                    )
                     X, A = np.vstack([X, Xg]), np.vstack([A, np.where(okg[:, None], Af, Ag)])
                     ok, crease = np.concatenate([ok, okg]), np.concatenate([crease, crg])
             Ae = Ae_save
@@ -697,7 +728,8 @@ def chain_seams(
     refine: bool = True,
     max_gap: float = 0.03,
     max_gap_angle: float = np.deg2rad(20.0),
-    smooth_length: float = 0.02,
+    smooth_length: float = 0.06,
+    approach_radius: float = 0.0,
 ) -> list[SeamPolyline]:
     """Cluster the weldable points and turn the clusters into ordered, resampled polylines.
 
@@ -731,7 +763,9 @@ def chain_seams(
         if piece is None:
             continue
         if refine:
-            Xs, A_fit, ok, crease = _refine_on_sides(P, N, tree, piece.X, side_radius, min_crease_angle)
+            Xs, A_fit, ok, crease = _refine_nodes(
+                P, N, tree, piece.X, side_radius, approach_radius, min_crease_angle
+            )
             if ok.mean() < min_fit_fraction:  # no two distinct side planes along most of it: not a joint
                 continue
             As = np.where(ok[:, None], A_fit, piece.A)
@@ -748,7 +782,7 @@ def chain_seams(
     if max_gap > 0 and refine:
         pieces = bridge_pieces(
             P, N, tree, pieces, max_gap=max_gap, max_angle=max_gap_angle, spacing=spacing,
-            side_radius=side_radius, min_crease_angle=min_crease_angle,
+            side_radius=side_radius, min_crease_angle=min_crease_angle, approach_radius=approach_radius,
         )
     window = max(int(smooth_window), int(round(smooth_length / spacing)) | 1)
     seams: list[SeamPolyline] = []
@@ -756,13 +790,25 @@ def chain_seams(
         Xs, As, closed = piece.X, piece.A, piece.closed
         ok = piece.ok if piece.ok is not None else np.ones(len(Xs), dtype=bool)
         crease = piece.crease if piece.crease is not None else np.zeros(len(Xs))
-        As = _smooth_approach(As, ok, window, closed)
+        # smoothing window: smooth_length, but at most 1/8 of the seam (a quadratic fit over more of a
+        # small ring would shrink it)
+        L = float(np.linalg.norm(np.diff(Xs, axis=0), axis=1).sum())
+        w = max(int(smooth_window), min(window, int(L / (8.0 * spacing)) | 1))
+        As = _smooth_approach(As, ok, w, closed)
         Xr, Ar = _resample(Xs, As, spacing, closed)
-        Xr = _smooth_positions(Xr, window, closed)
-        Ar = _smooth_approach(Ar, np.ones(len(Ar), dtype=bool), window, closed)
-        if not closed:  # the smoothed ends can still fold back: cut them
+        Xr = _smooth_positions(Xr, w, closed)
+        Ar = _smooth_approach(Ar, np.ones(len(Ar), dtype=bool), w, closed)
+        if not closed:  # smoothing must not lengthen the seam, and the ends can still fold back: cut them
+            d0, d1 = _end_directions(Xs, spacing, max(0.01, 3 * spacing))
+            inside = (np.einsum("ij,j->i", Xr - Xs[0], d0) <= 0) & (
+                np.einsum("ij,j->i", Xr - Xs[-1], d1) <= 0
+            )
+            Xr, Ar = Xr[inside], Ar[inside]
+            if len(Xr) < 3:
+                continue
             sl = _trim_turning_ends(Xr)
             Xr, Ar = Xr[sl], Ar[sl]
+        Xr, Ar = _resample(Xr, Ar, spacing, closed)  # smoothing moved the nodes: equal steps again
         ring = np.vstack([Xr, Xr[:1]]) if closed else Xr
         length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
         if length < min_length or len(Xr) < 2:
@@ -831,7 +877,7 @@ def extract_seams(
     refine: bool = True,
     fit_radius: float | None = None,
     max_gap: float = 0.03,
-    smooth_length: float = 0.02,
+    smooth_length: float = 0.06,
 ) -> SeamExtraction:
     """Edge points (eqs. 11-17) and ordered weld seams of a cloud in metres.
 
@@ -849,8 +895,9 @@ def extract_seams(
             :func:`classify_edges`. class_radius_factor: side-fit radius as a multiple of r.
         cluster_eps: link distance of the clustering (default 2 r). spacing: seam resampling step
             (default r). min_seam_length: shorter seams are dropped (m). smooth_window: nodes.
-        fit_radius: radius (m) of the two-side-plane fits that snap the seam and give its approach
-            (default ``max(class_radius_factor * r, 6 mm)``: enough points for sub-degree planes).
+        fit_radius: radius (m) of the two-side-plane fits that give the seam's approach direction
+            (default ``max(class_radius_factor * r, 8 mm)``: enough points for sub-degree planes); the
+            seam points are snapped with fits at ``class_radius_factor * r``.
         max_gap: pieces of one seam whose ends are at most this far apart (m) and collinear are
             chained across the gap (0 disables). smooth_length: smoothing window along the seam (m).
     """
@@ -901,7 +948,8 @@ def extract_seams(
             appr[keep],
             eps=cluster_eps or 2.0 * r,
             spacing=spacing or r,
-            side_radius=fit_radius or max(R, 0.006),
+            side_radius=max(R, 0.006),
+            approach_radius=fit_radius or max(R, 0.008),
             min_length=min_seam_length,
             smooth_window=smooth_window,
             min_crease_angle=min_crease_angle,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
-
 from weldcell.sdk.cloud import PointCloud, check_cloud
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length
@@ -36,9 +35,15 @@ class Reconstructor:
 
         robust = None if (self.s.robust or "").lower() in ("", "none") else self.s.robust
         return reconstruct(
-            scans, T_flange_camera, voxel=self.s.voxel, register_to_model=self.s.register_to_model,
-            max_correspondence_distance=self.s.max_correspondence_distance, max_iterations=self.s.max_iterations,
-            tolerance=self.s.tolerance, robust=robust, max_correction=tuple(self.s.max_correction),
+            scans,
+            T_flange_camera,
+            voxel=self.s.voxel,
+            register_to_model=self.s.register_to_model,
+            max_correspondence_distance=self.s.max_correspondence_distance,
+            max_iterations=self.s.max_iterations,
+            tolerance=self.s.tolerance,
+            robust=robust,
+            max_correction=tuple(self.s.max_correction),
             progress=progress,
         )
 
@@ -46,13 +51,29 @@ class Reconstructor:
 class BilateralSettings(Settings):
     """Point-cloud bilateral filter (eqs. 9-10) and voxel down-sampling."""
 
-    radius: Length | None = Field(None, gt=0, description="neighbourhood radius [m]; default 3 x mean spacing")
+    radius: Length | None = Field(
+        None, gt=0, description="neighbourhood radius [m]; default 3 x mean spacing"
+    )
     sigma_c: Length | None = Field(None, gt=0, description="distance weight sigma_c [m]; default radius / 2")
-    sigma_s: Length | None = Field(None, gt=0, description="normal-distance weight sigma_s [m]; default: noise")
+    sigma_s: Length | None = Field(
+        None, gt=0, description="normal-distance weight sigma_s [m]; default: noise"
+    )
     iterations: int = Field(1, ge=0, le=10, description="filter passes (0 = off)")
-    voxel_factor: float = Field(1.5, ge=0, description="down-sample to this multiple of the mean spacing (0 = off)")
-    crop_min: tuple[Length, Length, Length] | None = Field(None, description="keep points above this corner [m]")
-    crop_max: tuple[Length, Length, Length] | None = Field(None, description="keep points below this corner [m]")
+    voxel_factor: float = Field(
+        1.5, ge=0, description="down-sample to this multiple of the mean spacing (0 = off)"
+    )
+    min_voxel: Length = Field(
+        0.0015,
+        ge=0,
+        description="but to voxels of at least this size [m]: a dense single "
+        "frame is thinned to the resolution the seam stage is tuned for",
+    )
+    crop_min: tuple[Length, Length, Length] | None = Field(
+        None, description="keep points above this corner [m]"
+    )
+    crop_max: tuple[Length, Length, Length] | None = Field(
+        None, description="keep points below this corner [m]"
+    )
 
 
 class BilateralDenoiser:
@@ -72,12 +93,13 @@ class BilateralDenoiser:
         P = P[keep]
         check_cloud(PointCloud(P), "cloud inside the crop box", min_points=10)
         if self.s.voxel_factor > 0:
-            P = voxel_downsample(P, factor=self.s.voxel_factor)
+            P = voxel_downsample(P, voxel_size=max(self.s.voxel_factor * mean_spacing(P), self.s.min_voxel))
         normals = None
         if self.s.iterations > 0:
             radius = self.s.radius or 3.0 * mean_spacing(P)
-            P, normals = bilateral_filter(P, radius, sigma_c=self.s.sigma_c, sigma_s=self.s.sigma_s,
-                                          iterations=self.s.iterations)
+            P, normals = bilateral_filter(
+                P, radius, sigma_c=self.s.sigma_c, sigma_s=self.s.sigma_s, iterations=self.s.iterations
+            )
         return PointCloud(P, normals=normals, frame=cloud.frame, meta=dict(cloud.meta))
 
 
@@ -118,9 +140,18 @@ class EdgeSeamExtractor:
 
         check_cloud(cloud, "cloud for seam extraction", min_points=self.s.m + 1)
         normals = oriented_normals(cloud)
-        return extract_seams(cloud.points, normals, m=self.s.m, t=self.s.t, radius=self.s.radius,
-                             sigma=self.s.sigma, min_intensity=self.s.min_intensity, joints=tuple(self.s.joints),
-                             min_seam_length=self.s.min_seam_length, spacing=self.s.spacing)
+        return extract_seams(
+            cloud.points,
+            normals,
+            m=self.s.m,
+            t=self.s.t,
+            radius=self.s.radius,
+            sigma=self.s.sigma,
+            min_intensity=self.s.min_intensity,
+            joints=tuple(self.s.joints),
+            min_seam_length=self.s.min_seam_length,
+            spacing=self.s.spacing,
+        )
 
 
 class TorchPathSettings(Settings):
@@ -142,9 +173,22 @@ class TorchPathPlanner:
 
         out = []
         for seam in seams:
-            tp = plan_torch_path(seam, standoff=self.s.standoff, work_angle=self.s.work_angle,
-                                 travel_angle=self.s.travel_angle, travel_average=self.s.travel_average,
-                                 rho=self.s.rho)
-            out.append(SeamPath(id=f"s{seam.id}", joint=seam.joint_class, points=seam.points, poses=tp.poses,
-                                closed=seam.closed, extra={"approach": np.round(seam.normals, 6).tolist()}))
+            tp = plan_torch_path(
+                seam,
+                standoff=self.s.standoff,
+                work_angle=self.s.work_angle,
+                travel_angle=self.s.travel_angle,
+                travel_average=self.s.travel_average,
+                rho=self.s.rho,
+            )
+            out.append(
+                SeamPath(
+                    id=f"s{seam.id}",
+                    joint=seam.joint_class,
+                    points=seam.points,
+                    poses=tp.poses,
+                    closed=seam.closed,
+                    extra={"approach": np.round(seam.normals, 6).tolist()},
+                )
+            )
         return WeldPath(out, frame=frame)

@@ -38,8 +38,10 @@ def probe(settings) -> str:
     try:
         v = rtde_handshake(settings.host, timeout=min(settings.connect_timeout, 2.0))
     except DeviceError as e:
-        raise DeviceError(f"UR controller at {settings.host} does not answer on RTDE port 30004: {e.message}",
-                          "check the robot is on, the IP address, and that the PC is on the robot's network") from None
+        raise DeviceError(
+            f"UR controller at {settings.host} does not answer on RTDE port 30004: {e.message}",
+            "check the robot is on, the IP address, and that the PC is on the robot's network",
+        ) from None
     return f"UR controller {v[0]}.{v[1]}.{v[2]}.{v[3]} at {settings.host} (RTDE protocol 2)"
 
 
@@ -47,6 +49,14 @@ def probe(settings) -> str:
 def weldcell_register_devices(register):
     from weldcell.plugins.ur.settings import URSettings
 
-    register(DeviceSpec(name=NAME, kind="robot", summary="Universal Robots CB3/e-Series arm over RTDE (ur-rtde)",
-                        settings=URSettings, factory=_factory, probe=probe,
-                        requires={"rtde_control": "ur", "rtde_receive": "ur", "dashboard_client": "ur"}))
+    register(
+        DeviceSpec(
+            name=NAME,
+            kind="robot",
+            summary="Universal Robots CB3/e-Series arm over RTDE (ur-rtde)",
+            settings=URSettings,
+            factory=_factory,
+            probe=probe,
+            requires={"rtde_control": "ur", "rtde_receive": "ur", "dashboard_client": "ur"},
+        )
+    )

@@ -16,7 +16,6 @@ import dashboard_client
 import numpy as np
 import rtde_control
 import rtde_receive
-
 from weldcell.hal.robot import Robot
 from weldcell.hal.safety import SafetyGate
 from weldcell.plugins.ur import rtde_protocol as P
@@ -45,8 +44,13 @@ def path_blends(poses: np.ndarray, blend: float) -> np.ndarray:
 class URRobot(Robot):
     """A UR arm through ur-rtde (device ``robot.ur-rtde``)."""
 
-    def __init__(self, settings: URSettings | None = None, name: str = "robot", gate: SafetyGate | None = None,
-                 dry_run: bool = False) -> None:
+    def __init__(
+        self,
+        settings: URSettings | None = None,
+        name: str = "robot",
+        gate: SafetyGate | None = None,
+        dry_run: bool = False,
+    ) -> None:
         self.settings = settings or URSettings()
         super().__init__(name, gate=gate, motion=self.settings, dry_run=dry_run)
         self._r = None
@@ -71,7 +75,9 @@ class URRobot(Robot):
             try:
                 self._r = rtde_receive.RTDEReceiveInterface(s.host, self._freq)
             except RuntimeError as e:
-                raise DeviceError(f"RTDE receive connection to {s.host}:30004 failed: {e}", self._fix()) from e
+                raise DeviceError(
+                    f"RTDE receive connection to {s.host}:30004 failed: {e}", self._fix()
+                ) from e
         self._last_ts, self._last_change = None, time.monotonic()
         self._check_safety()
         if self.dry_run:
@@ -85,11 +91,15 @@ class URRobot(Robot):
             try:
                 self._c = rtde_control.RTDEControlInterface(s.host, self._freq, int(flags), s.ur_cap_port)
             except RuntimeError as e:
-                raise DeviceError(f"RTDE control connection to {s.host} failed: {e}",
-                                  "put the robot in remote control (e-Series), power it on and release the brakes; "
-                                  + self._fix()) from e
+                raise DeviceError(
+                    f"RTDE control connection to {s.host} failed: {e}",
+                    "put the robot in remote control (e-Series), power it on and release the brakes; "
+                    + self._fix(),
+                ) from e
         if not self._c.setTcp([0.0] * 6):
-            raise DeviceError("the controller refused setTcp([0]*6)", "check that the control script is running")
+            raise DeviceError(
+                "the controller refused setTcp([0]*6)", "check that the control script is running"
+            )
 
     def on_activate(self) -> None:
         self._check_link()
@@ -125,8 +135,10 @@ class URRobot(Robot):
                 dash.closeSafetyPopup()
                 dash.unlockProtectiveStop()
             except RuntimeError as e:
-                raise DeviceError(f"Dashboard server at {s.host}:{s.dashboard_port} failed: {e}",
-                                  "clear the protective stop on the teach pendant") from e
+                raise DeviceError(
+                    f"Dashboard server at {s.host}:{s.dashboard_port} failed: {e}",
+                    "clear the protective stop on the teach pendant",
+                ) from e
             finally:
                 try:
                     dash.disconnect()
@@ -143,8 +155,10 @@ class URRobot(Robot):
             while self._r.isProtectiveStopped() and time.monotonic() < deadline:
                 time.sleep(0.01)
             if self._r.isProtectiveStopped():
-                raise DeviceError("the protective stop is still active after the unlock request",
-                                  "wait 5 s after the stop, remove its cause, then recover() again")
+                raise DeviceError(
+                    "the protective stop is still active after the unlock request",
+                    "wait 5 s after the stop, remove its cause, then recover() again",
+                )
         self._protective_stop_seen = False
 
     # -- checks ----------------------------------------------------------------------------------
@@ -160,14 +174,21 @@ class URRobot(Robot):
         if r.isProtectiveStopped() or mode in P.STOPPED_SAFETY_MODES:
             self._protective_stop_seen = True
             name = P.SAFETY_MODES.get(mode, str(mode))
-            raise self.fault(f"robot is stopped by its safety system ({name}); motion is locked")
+            e = self.fault(f"robot is stopped by its safety system ({name}); motion is locked")
+            raise DeviceError(
+                e.message,
+                "remove the cause of the stop, then recover() (closes the popup and "
+                "unlocks a protective stop through the Dashboard server) and configure() again",
+            )
 
     def _check_fresh(self) -> None:
         ts, now = float(self._r.getTimestamp()), time.monotonic()
         if ts != self._last_ts:
             self._last_ts, self._last_change = ts, now
         elif now - self._last_change > self.settings.state_timeout:
-            raise self.fault(f"no new RTDE data from {self.settings.host} for {now - self._last_change:.2f} s")
+            raise self.fault(
+                f"no new RTDE data from {self.settings.host} for {now - self._last_change:.2f} s"
+            )
 
     def _await_fresh_state(self, packages: int = 2) -> None:
         """After a blocking motion: wait (bounded) for ``packages`` new RTDE packages, so the next state
@@ -202,8 +223,10 @@ class URRobot(Robot):
         if ok is False:
             self._check_link()
             self._check_safety()
-            raise DeviceError(f"the controller did not complete {what}",
-                              "check the pendant's log (singularity, joint limit, or the program was stopped)")
+            raise DeviceError(
+                f"the controller did not complete {what}",
+                "check the pendant's log (singularity, joint limit, or the program was stopped)",
+            )
 
     def _move_linear(self, T_base_flange: np.ndarray, speed: float, accel: float) -> None:
         self._command("moveL", self._c.moveL, T_to_ur_pose(T_base_flange).tolist(), speed, accel, False)
@@ -215,7 +238,9 @@ class URRobot(Robot):
 
     def _follow_path(self, poses: np.ndarray, speed: float, accel: float, blend: float) -> None:
         blends = path_blends(poses, blend)
-        path = [[*T_to_ur_pose(T).tolist(), speed, accel, float(b)] for T, b in zip(poses, blends, strict=True)]
+        path = [
+            [*T_to_ur_pose(T).tolist(), speed, accel, float(b)] for T, b in zip(poses, blends, strict=True)
+        ]
         self._command("moveL path", self._c.moveL, path, False)
         self._await_fresh_state()
 
@@ -225,8 +250,11 @@ class URRobot(Robot):
     def _stop(self, decel: float) -> None:
         c = self._c
         if c is None or not c.isConnected():
-            log.warning("stop: no control connection to %s (the control script stops the arm when its "
-                        "connection drops)", self.settings.host)
+            log.warning(
+                "stop: no control connection to %s (the control script stops the arm when its "
+                "connection drops)",
+                self.settings.host,
+            )
             return
         try:
             c.stopL(decel, False)

@@ -31,9 +31,13 @@ def rtde_handshake(host: str, port: int = P.PORT, timeout: float = 1.0) -> tuple
     """
     t = TcpTransport(host, port, timeout=timeout, connect_timeout=timeout)
     with t:
-        (accepted,) = struct.unpack(">B", _request(t, P.REQUEST_PROTOCOL_VERSION, struct.pack(">H", 2), timeout))
+        (accepted,) = struct.unpack(
+            ">B", _request(t, P.REQUEST_PROTOCOL_VERSION, struct.pack(">H", 2), timeout)
+        )
         if not accepted:
-            raise DeviceError(f"the controller at {host}:{port} refused RTDE protocol version 2",
-                              "update the robot software (RTDE v2 needs CB3 3.3 / any e-Series)")
+            raise DeviceError(
+                f"the controller at {host}:{port} refused RTDE protocol version 2",
+                "update the robot software (RTDE v2 needs CB3 3.3 / any e-Series)",
+            )
         reply = _request(t, P.GET_URCONTROL_VERSION, b"", timeout)
         return struct.unpack(">IIII", reply[:16])  # type: ignore[return-value]

@@ -45,26 +45,67 @@ TYPE_FORMATS: dict[str, str] = {
 _V6 = "VECTOR6D"
 OUTPUT_TYPES: dict[str, str] = {
     "timestamp": "DOUBLE",
-    "target_q": _V6, "target_qd": _V6, "target_qdd": _V6, "target_current": _V6, "target_moment": _V6,
-    "actual_q": _V6, "actual_qd": _V6, "actual_current": _V6, "actual_current_window": _V6,
-    "joint_control_output": _V6, "actual_TCP_pose": _V6, "actual_TCP_speed": _V6, "actual_TCP_force": _V6,
-    "target_TCP_pose": _V6, "target_TCP_speed": _V6, "actual_digital_input_bits": "UINT64",
-    "joint_temperatures": _V6, "actual_execution_time": "DOUBLE", "robot_mode": "INT32",
-    "joint_mode": "VECTOR6INT32", "safety_mode": "INT32", "safety_status": "INT32",
-    "actual_tool_accelerometer": "VECTOR3D", "speed_scaling": "DOUBLE", "target_speed_fraction": "DOUBLE",
-    "actual_momentum": "DOUBLE", "actual_main_voltage": "DOUBLE", "actual_robot_voltage": "DOUBLE",
-    "actual_robot_current": "DOUBLE", "actual_joint_voltage": _V6, "actual_digital_output_bits": "UINT64",
-    "runtime_state": "UINT32", "elbow_position": "VECTOR3D", "elbow_velocity": "VECTOR3D",
-    "robot_status_bits": "UINT32", "safety_status_bits": "UINT32", "analog_io_types": "UINT32",
-    "standard_analog_input0": "DOUBLE", "standard_analog_input1": "DOUBLE",
-    "standard_analog_output0": "DOUBLE", "standard_analog_output1": "DOUBLE", "io_current": "DOUBLE",
-    "tool_mode": "UINT32", "tool_analog_input_types": "UINT32", "tool_analog_input0": "DOUBLE",
-    "tool_analog_input1": "DOUBLE", "tool_output_voltage": "INT32", "tool_output_current": "DOUBLE",
-    "tool_temperature": "DOUBLE", "tcp_force_scalar": "DOUBLE", "output_bit_registers0_to_31": "UINT32",
-    "output_bit_registers32_to_63": "UINT32", "payload": "DOUBLE", "payload_cog": "VECTOR3D",
-    "payload_inertia": _V6, "script_control_line": "UINT32", "ft_raw_wrench": _V6,
-    "joint_position_deviation_ratio": "DOUBLE", "collision_detection_ratio": "DOUBLE",
-    "time_scale_source": "UINT32", "actual_robot_energy_consumed": "DOUBLE",
+    "target_q": _V6,
+    "target_qd": _V6,
+    "target_qdd": _V6,
+    "target_current": _V6,
+    "target_moment": _V6,
+    "actual_q": _V6,
+    "actual_qd": _V6,
+    "actual_current": _V6,
+    "actual_current_window": _V6,
+    "joint_control_output": _V6,
+    "actual_TCP_pose": _V6,
+    "actual_TCP_speed": _V6,
+    "actual_TCP_force": _V6,
+    "target_TCP_pose": _V6,
+    "target_TCP_speed": _V6,
+    "actual_digital_input_bits": "UINT64",
+    "joint_temperatures": _V6,
+    "actual_execution_time": "DOUBLE",
+    "robot_mode": "INT32",
+    "joint_mode": "VECTOR6INT32",
+    "safety_mode": "INT32",
+    "safety_status": "INT32",
+    "actual_tool_accelerometer": "VECTOR3D",
+    "speed_scaling": "DOUBLE",
+    "target_speed_fraction": "DOUBLE",
+    "actual_momentum": "DOUBLE",
+    "actual_main_voltage": "DOUBLE",
+    "actual_robot_voltage": "DOUBLE",
+    "actual_robot_current": "DOUBLE",
+    "actual_joint_voltage": _V6,
+    "actual_digital_output_bits": "UINT64",
+    "runtime_state": "UINT32",
+    "elbow_position": "VECTOR3D",
+    "elbow_velocity": "VECTOR3D",
+    "robot_status_bits": "UINT32",
+    "safety_status_bits": "UINT32",
+    "analog_io_types": "UINT32",
+    "standard_analog_input0": "DOUBLE",
+    "standard_analog_input1": "DOUBLE",
+    "standard_analog_output0": "DOUBLE",
+    "standard_analog_output1": "DOUBLE",
+    "io_current": "DOUBLE",
+    "tool_mode": "UINT32",
+    "tool_analog_input_types": "UINT32",
+    "tool_analog_input0": "DOUBLE",
+    "tool_analog_input1": "DOUBLE",
+    "tool_output_voltage": "INT32",
+    "tool_output_current": "DOUBLE",
+    "tool_temperature": "DOUBLE",
+    "tcp_force_scalar": "DOUBLE",
+    "output_bit_registers0_to_31": "UINT32",
+    "output_bit_registers32_to_63": "UINT32",
+    "payload": "DOUBLE",
+    "payload_cog": "VECTOR3D",
+    "payload_inertia": _V6,
+    "script_control_line": "UINT32",
+    "ft_raw_wrench": _V6,
+    "joint_position_deviation_ratio": "DOUBLE",
+    "collision_detection_ratio": "DOUBLE",
+    "time_scale_source": "UINT32",
+    "actual_robot_energy_consumed": "DOUBLE",
     "actual_robot_braking_energy_dissipated": "DOUBLE",
 }
 """Output variables of the controller and their types (the RTDE guide's output table)."""
@@ -72,12 +113,33 @@ OUTPUT_TYPES: dict[str, str] = {
 _REGISTER = re.compile(r"^(output|input)_(bit|int|double)_register_(\d+)$")
 _REGISTER_TYPES = {"bit": "BOOL", "int": "INT32", "double": "DOUBLE"}
 
-ROBOT_MODES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
-               4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
-SAFETY_MODES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
-                6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
-                10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
-                13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
+ROBOT_MODES = {
+    -1: "NO_CONTROLLER",
+    0: "DISCONNECTED",
+    1: "CONFIRM_SAFETY",
+    2: "BOOTING",
+    3: "POWER_OFF",
+    4: "POWER_ON",
+    5: "IDLE",
+    6: "BACKDRIVE",
+    7: "RUNNING",
+    8: "UPDATING_FIRMWARE",
+}
+SAFETY_MODES = {
+    1: "NORMAL",
+    2: "REDUCED",
+    3: "PROTECTIVE_STOP",
+    4: "RECOVERY",
+    5: "SAFEGUARD_STOP",
+    6: "SYSTEM_EMERGENCY_STOP",
+    7: "ROBOT_EMERGENCY_STOP",
+    8: "VIOLATION",
+    9: "FAULT",
+    10: "VALIDATE_JOINT_ID",
+    11: "UNDEFINED_SAFETY_MODE",
+    12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+    13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
+}
 STOPPED_SAFETY_MODES = frozenset({3, 5, 6, 7, 8, 9, 12, 13})
 """Safety modes in which the arm does not move (stops, emergency stops, violation, fault)."""
 SAFETY_BIT_PROTECTIVE_STOPPED = 2
@@ -131,7 +193,7 @@ def unpack_values(types: Sequence[str], data: bytes) -> list[object]:
         fmt = TYPE_FORMATS[t]
         n = int(fmt[:-1]) if fmt[0].isdigit() else 0
         if n:
-            out.append(tuple(flat[i:i + n]))
+            out.append(tuple(flat[i : i + n]))
             i += n
         else:
             out.append(flat[i])

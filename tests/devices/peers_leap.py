@@ -26,6 +26,7 @@ class LeapReplayServer:
         self.paused = False
         self._drop_after: int | None = None
         self._lock = threading.Lock()
+        self._closing = False
         self.server = serve(self._handler, "127.0.0.1", 0, process_request=self._gate)
         self.port = self.server.socket.getsockname()[1]
         self.url = f"ws://127.0.0.1:{self.port}/v6.json"
@@ -53,7 +54,7 @@ class LeapReplayServer:
 
         threading.Thread(target=listen, daemon=True).start()
         try:
-            while True:
+            while not self._closing:
                 if self.paused:
                     time.sleep(0.01)
                     continue
@@ -76,5 +77,6 @@ class LeapReplayServer:
         return next(f for f in self.frames if f["id"] == fid)
 
     def close(self) -> None:
+        self._closing = True
         self.server.shutdown()
         self._thread.join(2)

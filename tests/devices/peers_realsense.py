@@ -30,8 +30,17 @@ def _range(lo: float, hi: float, step: float, default: float) -> rs.option_range
 class SoftwareD415:
     """Depth ``w x h`` (f=``f``) and colour ``cw x ch`` (f=``cf``); the scene is ``depth_m(u, v)``."""
 
-    def __init__(self, w: int = 64, h: int = 48, f: float = 50.0, cw: int = 80, ch: int = 60, cf: float = 60.0,
-                 depth_units: float = 1e-4, fps: int = 30) -> None:
+    def __init__(
+        self,
+        w: int = 64,
+        h: int = 48,
+        f: float = 50.0,
+        cw: int = 80,
+        ch: int = 60,
+        cf: float = 60.0,
+        depth_units: float = 1e-4,
+        fps: int = 30,
+    ) -> None:
         self.w, self.h, self.f, self.cw, self.ch, self.cf = w, h, f, cw, ch, cf
         self.depth_units = depth_units
         self.dev = rs.software_device()
@@ -70,15 +79,17 @@ class SoftwareD415:
         return z
 
     def color_rgb(self) -> np.ndarray:
-        v, u = np.mgrid[0:self.ch, 0:self.cw]
+        v, u = np.mgrid[0 : self.ch, 0 : self.cw]
         return np.stack([u * 3 % 256, v * 4 % 256, np.full_like(u, 77)], axis=2).astype(np.uint8)
 
     def feed_one(self) -> None:
         self.n += 1
         t = self.n * 33.333
         d = np.round(self.depth_m() / self.depth_units).astype(np.uint16)
-        for sensor, profile, pixels, bpp in ((self.depth_sensor, self.depth_profile, d, 2),
-                                             (self.color_sensor, self.color_profile, self.color_rgb(), 3)):
+        for sensor, profile, pixels, bpp in (
+            (self.depth_sensor, self.depth_profile, d, 2),
+            (self.color_sensor, self.color_profile, self.color_rgb(), 3),
+        ):
             fr = rs.software_video_frame()
             fr.pixels, fr.bpp, fr.stride = pixels, bpp, pixels.shape[1] * bpp
             fr.timestamp, fr.domain, fr.frame_number = t, rs.timestamp_domain.hardware_clock, self.n

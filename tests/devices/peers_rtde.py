@@ -20,7 +20,6 @@ import threading
 import time
 
 import numpy as np
-
 from weldcell.plugins.ur import rtde_protocol as P
 from weldcell.sdk.geometry import T_to_ur_pose
 
@@ -73,11 +72,22 @@ class SimArm:
         bits = 1 if smode == 1 else 0
         if smode == 3:
             bits |= 1 << P.SAFETY_BIT_PROTECTIVE_STOPPED
-        return {"timestamp": time.monotonic() - self.t0, "actual_q": tuple(q), "target_q": tuple(q),
-                "actual_qd": tuple(qd), "actual_TCP_pose": tuple(pose), "target_TCP_pose": tuple(pose),
-                "robot_mode": mode, "safety_mode": smode, "safety_status": smode, "safety_status_bits": bits,
-                "runtime_state": 2, "speed_scaling": 1.0, "target_speed_fraction": 1.0,
-                "robot_status_bits": 0b1111}
+        return {
+            "timestamp": time.monotonic() - self.t0,
+            "actual_q": tuple(q),
+            "target_q": tuple(q),
+            "actual_qd": tuple(qd),
+            "actual_TCP_pose": tuple(pose),
+            "target_TCP_pose": tuple(pose),
+            "robot_mode": mode,
+            "safety_mode": smode,
+            "safety_status": smode,
+            "safety_status_bits": bits,
+            "runtime_state": 2,
+            "speed_scaling": 1.0,
+            "target_speed_fraction": 1.0,
+            "robot_status_bits": 0b1111,
+        }
 
 
 def _zero(t: str):
@@ -90,7 +100,9 @@ def _zero(t: str):
 class RTDEPeer:
     """An RTDE server on ``host:port`` streaming ``arm.values()`` at the requested frequency."""
 
-    def __init__(self, arm: SimArm, host: str | None = None, port: int = P.PORT, version=(5, 11, 1, 108)) -> None:
+    def __init__(
+        self, arm: SimArm, host: str | None = None, port: int = P.PORT, version=(5, 11, 1, 108)
+    ) -> None:
         self.arm = arm
         self.port = port
         self.host = host or free_loopback_host(port)
@@ -162,7 +174,10 @@ class RTDEPeer:
                     continue
                 vals = self.arm.values()
                 types = out["types"]
-                data = P.pack_values(types, [vals.get(n, _zero(t)) for n, t in zip(out["names"], types)])
+                names = out["names"]
+                data = P.pack_values(
+                    types, [vals.get(n, _zero(t)) for n, t in zip(names, types, strict=True)]
+                )
                 try:
                     send(P.DATA_PACKAGE, struct.pack(">B", out["id"]) + data)
                 except OSError:
@@ -188,8 +203,11 @@ class RTDEPeer:
                     self.setups.append(names)
                     if "NOT_FOUND" not in types:
                         out.update(names=names, types=types, period=1.0 / max(1.0, min(freq, 500.0)))
-                    send(cmd, struct.pack(">B", out["id"] if "NOT_FOUND" not in types else 0)
-                         + ",".join(types).encode())
+                    send(
+                        cmd,
+                        struct.pack(">B", out["id"] if "NOT_FOUND" not in types else 0)
+                        + ",".join(types).encode(),
+                    )
                 elif cmd == P.CONTROL_PACKAGE_SETUP_INPUTS:
                     names = [n for n in payload.decode().split(",") if n]
                     types = [P.variable_type(n) for n in names]
@@ -254,7 +272,9 @@ class DashboardPeer:
                         self.arm.protective_stop(False)
                         reply = "Protective stop releasing"
                     else:
-                        reply = "Cannot unlock protective stop until 5s after occurrence. Always inspect cause"
+                        reply = (
+                            "Cannot unlock protective stop until 5s after occurrence. Always inspect cause"
+                        )
                 elif cmd == "robotmode":
                     reply = f"Robotmode: {P.ROBOT_MODES[self.arm.robot_mode]}"
                 elif cmd == "safetystatus":
@@ -366,8 +386,14 @@ class FakeRTDEControlInterface:
     peers: dict[str, PeerProcess] = {}
     calls: list[tuple] = []
 
-    def __init__(self, hostname: str, frequency: float = -1.0, flags: int = 1, ur_cap_port: int = 50002,
-                 rt_priority: int = 0) -> None:
+    def __init__(
+        self,
+        hostname: str,
+        frequency: float = -1.0,
+        flags: int = 1,
+        ur_cap_port: int = 50002,
+        rt_priority: int = 0,
+    ) -> None:
         if hostname not in self.peers:
             raise RuntimeError(f"Couldn't connect to {hostname}:30004 (no controller)")
         from weldcell.hal.sim.kinematics import get_model
@@ -435,7 +461,6 @@ class FakeRTDEControlInterface:
 
     def speedL(self, xd, acceleration: float = 0.25, time: float = 0.0) -> bool:
         from scipy.spatial.transform import Rotation
-
         from weldcell.sdk.geometry import make_T
 
         self.calls.append(("speedL", list(xd), acceleration, time))

@@ -109,7 +109,7 @@ def test_service_gone_for_good_is_an_error_with_a_fix(service):
     with pytest.raises(DeviceError) as e:
         for _ in range(200):
             leap.read()
-    assert "not regained" in e.value.message and leap.health().state is State.ERROR
+    assert "not regained" in e.value.message and leap.lifecycle is State.ERROR
     service.accepting = True
     leap.recover()
     leap.configure()
@@ -126,7 +126,7 @@ def test_silent_service_is_an_error(service):
             for _ in range(100):
                 leap.read()
         assert "no frame" in e.value.message and "Leap service" in e.value.fix
-        assert leap.health().state is State.ERROR
+        assert leap.lifecycle is State.ERROR
 
 
 def test_unreachable_service(service):
@@ -176,8 +176,21 @@ def test_bad_frames_are_clear_errors():
     with pytest.raises(DataError):
         frame_from_json({"serviceVersion": "2", "version": 6}, 0.0)
     with pytest.raises(DataError):
-        frame_from_json({"id": 1, "hands": [{"type": "left", "id": 1, "palmPosition": [1, 2], "palmNormal": [0, 1, 0],
-                                             "direction": [0, 0, 1]}]}, 0.0)
+        frame_from_json(
+            {
+                "id": 1,
+                "hands": [
+                    {
+                        "type": "left",
+                        "id": 1,
+                        "palmPosition": [1, 2],
+                        "palmNormal": [0, 1, 0],
+                        "direction": [0, 0, 1],
+                    }
+                ],
+            },
+            0.0,
+        )
 
 
 def test_registration(weldcell_pm):

@@ -7,7 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 is not installed (pip install 'weldcell[realsense]')")
+rs = pytest.importorskip(
+    "pyrealsense2", reason="pyrealsense2 is not installed (pip install 'weldcell[realsense]')"
+)
 
 from peers_realsense import SERIAL, SoftwareD415  # noqa: E402
 from weldcell.hal.lifecycle import State  # noqa: E402
@@ -112,12 +114,15 @@ def test_sensor_options(d415):
     assert d415.depth_sensor.get_option(rs.option.laser_power) == 210
     assert d415.depth_sensor.get_option(rs.option.visual_preset) == 3
     cam.close()
-    for kw, words in (({"laser_power": 200}, "grid"), ({"laser_power": 400}, "range"),
-                      ({"emitter_enabled": True}, "no emitter_enabled option")):
+    for kw, words in (
+        ({"laser_power": 200}, "grid"),
+        ({"laser_power": 400}, "range"),
+        ({"emitter_enabled": True}, "no emitter_enabled option"),
+    ):
         cam = RealSenseCamera(settings(**kw), device=d415.dev)
         with pytest.raises(DeviceError) as e:
             cam.configure()
-        assert words in e.value.message and cam.health().state is State.ERROR
+        assert words in e.value.message and cam.lifecycle is State.ERROR
 
 
 def test_a_camera_that_stops_sending_is_an_error_then_recovers(feed):
@@ -130,7 +135,7 @@ def test_a_camera_that_stops_sending_is_an_error_then_recovers(feed):
         for _ in range(10):
             cam.capture(timeout=0.2)
     assert "within 0.2 s" in e.value.message and "USB 3" in e.value.fix
-    assert cam.health().state is State.ERROR
+    assert cam.lifecycle is State.ERROR
     cam.recover()
     feed.feeding.set()
     cam.configure()
@@ -184,7 +189,9 @@ def test_align_without_colour_is_refused(d415):
 def test_registration(weldcell_pm):
     weldcell_pm.register(rs_plugin, "realsense")
     spec = weldcell_pm.registry.get("device", "camera.realsense")
-    assert spec.kind == "depth_camera" and spec.settings is RealSenseSettings and spec.probe is rs_plugin.probe
+    assert (
+        spec.kind == "depth_camera" and spec.settings is RealSenseSettings and spec.probe is rs_plugin.probe
+    )
 
     class Ctx:
         role = "camera"

@@ -1,4 +1,4 @@
-"""hal.transports against real peers on this machine: a pseudo-terminal, TCP/UDP servers, a WebSocket server."""
+"""hal.transports against real peers on this machine: a pseudo-terminal, TCP/UDP and WebSocket servers."""
 
 from __future__ import annotations
 
@@ -10,9 +10,15 @@ import threading
 import time
 
 import pytest
-
-from weldcell.hal.transports import (Backoff, SerialTransport, TcpTransport, TransportClosed, TransportTimeout,
-                                     UdpTransport, WebSocketTransport)
+from weldcell.hal.transports import (
+    Backoff,
+    SerialTransport,
+    TcpTransport,
+    TransportClosed,
+    TransportTimeout,
+    UdpTransport,
+    WebSocketTransport,
+)
 from weldcell.sdk.errors import DataError, DeviceError, MissingExtraError
 
 # ------------------------------------------------------------------------------------------------ peers
@@ -157,8 +163,10 @@ def test_serial_without_pyserial_names_the_extra(monkeypatch, pty_pair):
 def test_importing_transports_loads_no_vendor_library():
     import subprocess
 
-    code = ("import sys, weldcell.hal, weldcell.hal.transports; "
-            "print(sorted(m for m in ('serial','websockets') if m in sys.modules))")
+    code = (
+        "import sys, weldcell.hal, weldcell.hal.transports; "
+        "print(sorted(m for m in ('serial','websockets') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

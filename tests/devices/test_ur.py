@@ -12,10 +12,8 @@ import pytest
 pytest.importorskip("rtde_receive", reason="ur-rtde is not installed (pip install 'weldcell[ur]')")
 
 import rtde_control  # noqa: E402
-
 from peers_rtde import FakeRTDEControlInterface, PeerProcess  # noqa: E402
 from weldcell.hal.lifecycle import State  # noqa: E402
-from weldcell.hal.robot import Robot  # noqa: E402
 from weldcell.hal.safety import SafetyGate  # noqa: E402
 from weldcell.hal.sim.kinematics import get_model  # noqa: E402
 from weldcell.plugins import ur as ur_plugin  # noqa: E402
@@ -61,42 +59,7 @@ def wait_disconnected(dev: URRobot) -> None:
         time.sleep(0.01)
 
 
-# hal.robot.Robot.state() (the robot-state reading) shadows the lifecycle property Device.state, so the
-# suite's ``device.lifecycle is State.X`` checks cannot pass for any robot until the HAL renames one of them.
-_STATE_SHADOWED = callable(getattr(Robot, "state", None))
-_shadowed = pytest.mark.xfail(_STATE_SHADOWED, strict=True,
-                              reason="HAL bug: Robot.state() shadows Device.state (reported to the lead)")
-
-
 class TestURConformance(RobotConformance):
-    @_shadowed
-    def test_lifecycle_order(self, device):
-        super().test_lifecycle_order(device)
-
-    @_shadowed
-    def test_context_manager_opens_and_always_closes(self, device):
-        super().test_context_manager_opens_and_always_closes(device)
-
-    @_shadowed
-    def test_error_state_and_recovery(self, device, break_device):
-        super().test_error_state_and_recovery(device, break_device)
-
-    def test_error_state_and_recovery_via_health(self, device, break_device):
-        """The suite's recovery check, reading the lifecycle state from health()."""
-        with device as d:
-            d.state()
-            break_device(d)
-            with pytest.raises(DeviceError):
-                for _ in range(50):
-                    d.state()
-            h = d.health()
-            assert h.lifecycle is State.ERROR and not h.ok and "lost" in h.message
-            d.recover()
-            assert d.health().state is State.UNCONFIGURED
-            d.configure()
-            d.activate()
-            d.state()
-
     @pytest.fixture
     def device(self, cell):
         return make_robot(cell.host)
@@ -142,8 +105,12 @@ def test_follow_path_sends_one_movel_path_with_safe_blends(cell):
         T0 = arm.state().T_base_tcp
         offs = [[0.02, 0, 0], [0.04, 0.0, 0.0], [0.04, 0.004, 0.0], [0.04, 0.03, 0.01]]
         poses = np.stack([T0 @ T_from_rpy((0, 0, 0), o) for o in offs])
-        poses = np.stack([np.block([[T0[:3, :3], (T0[:3, 3] + np.array(o))[:, None]], [np.zeros((1, 3)), 1]])
-                          for o in offs])
+        poses = np.stack(
+            [
+                np.block([[T0[:3, :3], (T0[:3, 3] + np.array(o))[:, None]], [np.zeros((1, 3)), 1]])
+                for o in offs
+            ]
+        )
         arm.follow_path(poses, speed=0.05, accel=0.5, blend=0.005)
         (cmd,) = [c for c in FakeRTDEControlInterface.calls if c[0] == "moveL_path"]
         path = np.array(cmd[1])
@@ -176,7 +143,7 @@ def test_protective_stop_enters_error_and_recover_unlocks_via_dashboard(cell):
     with pytest.raises(DeviceError) as e:
         arm.state()
     assert "PROTECTIVE_STOP" in e.value.message
-    assert arm.health().state is State.ERROR and "PROTECTIVE_STOP" in arm.health().message
+    assert arm.lifecycle is State.ERROR and "PROTECTIVE_STOP" in arm.health().message
     with pytest.raises(DeviceError):  # no motion while in ERROR
         arm.move_joint(UR5.home)
     arm.recover()
@@ -201,7 +168,7 @@ def test_motion_refused_by_a_stop_during_the_move_is_an_error(cell, monkeypatch)
         monkeypatch.setattr(FakeRTDEControlInterface, "moveL", stop_then_move)
         with pytest.raises(DeviceError) as e:
             arm.move_linear(target)
-        assert "PROTECTIVE_STOP" in e.value.message and arm.health().state is State.ERROR
+        assert "PROTECTIVE_STOP" in e.value.message and arm.lifecycle is State.ERROR
 
 
 def test_a_silent_stream_is_a_fault(cell):
@@ -212,7 +179,7 @@ def test_a_silent_stream_is_a_fault(cell):
             for _ in range(100):
                 arm.state()
                 time.sleep(0.01)
-        assert "no new RTDE data" in e.value.message and arm.health().state is State.ERROR
+        assert "no new RTDE data" in e.value.message and arm.lifecycle is State.ERROR
 
 
 def test_dry_run_never_opens_the_control_interface(cell):
@@ -236,7 +203,7 @@ def test_unreachable_controller_is_a_device_error(cell):
     arm = URRobot(URSettings(host=free_host), name="arm")
     with pytest.raises(DeviceError) as e:
         arm.configure()
-    assert free_host in e.value.message and arm.health().state is State.ERROR
+    assert free_host in e.value.message and arm.lifecycle is State.ERROR
 
 
 def test_probe_reads_the_controller_version(cell):
