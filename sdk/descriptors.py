@@ -69,10 +69,11 @@ class Descriptor:
                 missing.append((module, extra))
         return missing
 
-    def check_available(self) -> None:
-        """Raise :class:`MissingExtraError` naming the extra when a required module is missing."""
+    def check_available(self, distribution: str | None = None) -> None:
+        """Raise :class:`MissingExtraError` naming the extra (of ``distribution``, default weldcell)
+        when a required module is missing."""
         for module, extra in self.missing_extras():
-            raise MissingExtraError(f"{self.category} '{self.name}'", module, extra)
+            raise MissingExtraError(f"{self.category} '{self.name}'", module, extra, distribution or "weldcell")
 
 
 @dataclass(frozen=True)

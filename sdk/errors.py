@@ -62,10 +62,10 @@ class UnknownPluginError(PluginError):
 class MissingExtraError(PluginError):
     """A plugin needs an optional dependency that is not installed."""
 
-    def __init__(self, what: str, module: str, extra: str) -> None:
+    def __init__(self, what: str, module: str, extra: str, distribution: str = "weldcell") -> None:
         super().__init__(
             f"{what} needs the Python package '{module}', which is not installed",
-            f"pip install 'weldcell[{extra}]'",
+            f"pip install '{distribution}[{extra}]'",
         )
         self.module = module
         self.extra = extra

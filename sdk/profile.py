@@ -72,7 +72,6 @@ class SimSection(Settings):
 
     workpieces: list[WorkpiecePlacement] = Field(default_factory=list, description="parts on the table")
     table_height: Length = Field(0.0, description="height of the table top in the world [m]")
-    hand_script: str | None = Field(None, description="scripted hand motion for a simulated gesture sensor")
 
 
 class OutputSettings(Settings):
@@ -80,6 +79,9 @@ class OutputSettings(Settings):
 
     runs_dir: str = Field("runs", description="folder for run folders, relative to the working directory")
     exporters: list[str] = Field(default_factory=list, description="exporter plugins to run on the result")
+    exporter_settings: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="settings per exporter name, e.g. [output.exporter_settings.\"export.urscript\"]"
+    )
     report: bool = Field(True, description="write report.md and pictures")
 
 
@@ -248,6 +250,12 @@ def _profile_error(loaded: LoadedProfile, problems: list[tuple[tuple[str, ...], 
     )
 
 
+def _dist(registry, category: str, name: str) -> str | None:
+    """The distribution that provides a registered name (for the install hint of a missing extra)."""
+    entry = getattr(registry, "entry", None)
+    return entry(category, name).provider.distribution if entry else None
+
+
 def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict[str, Any]:
     """Check a loaded profile against the installed plugins.
 
@@ -281,7 +289,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
         if role not in roles and job.any_devices:
             try:
                 spec = registry.get("device", entry.plugin)
-                spec.check_available()
+                spec.check_available(_dist(registry, "device", entry.plugin))
             except WeldcellError as e:
                 problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
                 continue
@@ -293,7 +301,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
             continue
         try:
             spec = registry.get("device", entry.plugin, kind=roles[role].kind)
-            spec.check_available()
+            spec.check_available(_dist(registry, "device", entry.plugin))
         except WeldcellError as e:
             problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
             continue
@@ -320,19 +328,27 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
         key = ("stages", role)
         try:
             spec = registry.get("stage", name, kind=r.kind)
-            spec.check_available()
+            spec.check_available(_dist(registry, "stage", name))
         except WeldcellError as e:
             problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
             continue
         resolved["stages"][role] = (spec, settings_for(spec, entry.settings if entry else {}, (*key, "settings")))
 
+    resolved["exporter_settings"] = {}
     for i, name in enumerate(p.output.exporters):
         try:
             spec = registry.get("exporter", name)
-            spec.check_available()
+            spec.check_available(_dist(registry, "exporter", name))
             resolved["exporters"].append(spec)
         except WeldcellError as e:
             problems.append((("output", "exporters", str(i)), f"{e.message}; {e.fix}" if e.fix else e.message))
+            continue
+        resolved["exporter_settings"][name] = settings_for(
+            spec, p.output.exporter_settings.get(name, {}), ("output", "exporter_settings", name))
+    for name in p.output.exporter_settings:
+        if name not in p.output.exporters:
+            problems.append((("output", "exporter_settings", name), f"'{name}' is not in output.exporters; add it "
+                                                                    "there or remove these settings"))
 
     for name, rel in p.calibration.items():
         f = (loaded.source_of(("calibration", name)).parent / rel).resolve()

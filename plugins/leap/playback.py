@@ -66,7 +66,7 @@ def load_recording(path: str | Path) -> list[dict]:
         try:
             import lzstring
         except ImportError:
-            raise MissingExtraError("reading .lz Leap recordings", "lzstring", "test") from None
+            raise MissingExtraError("reading .lz Leap recordings", "lzstring", "leap") from None
         text = lzstring.LZString().decompressFromBase64(text.strip())
         if not text:
             raise DataError(f"{p} is not LZ-String base64 data", "give a leapjs-playback .json.lz file")

@@ -180,13 +180,13 @@ def write_seam_picture(out_dir: Path, cloud: PointCloud, path: WeldPath, title: 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from weldcell.plugins.scan_plan.report import _plot_cloud_and_paths
+    from weldcell.plugins.scan_plan.report import plot_cloud_and_paths
 
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(0)
     fig, axes = plt.subplots(1, 3, figsize=(18, 6))
     for ax, view in zip(axes, ("top", "front", "side"), strict=True):
-        _plot_cloud_and_paths(ax, cloud.points, path, None, view, rng)
+        plot_cloud_and_paths(ax, cloud.points, path, None, view, rng)
     if path.seams:
         axes[0].legend(loc="upper right")
     fig.suptitle(title)

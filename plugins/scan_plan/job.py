@@ -368,7 +368,7 @@ def run(ctx) -> dict:
     with ctx.step("export programs"):
         written = []
         for spec in ctx.resolved["exporters"]:
-            text = spec.export(doc, spec.settings())
+            text = spec.export(doc, ctx.resolved["exporter_settings"].get(spec.name) or spec.settings())
             name = f"programs/weld_path{spec.suffix}"
             ctx.write_text(name, text)
             written.append(name)

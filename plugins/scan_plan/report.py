@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def _plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, frame_every=6):
+def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, frame_every=6):
     idx = rng.choice(len(cloud_pts), size=min(max_points, len(cloud_pts)), replace=False)
     P = cloud_pts[idx] * 1000
     a, b = {"top": (0, 1), "front": (0, 2), "side": (1, 2)}[view]
@@ -38,7 +38,7 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt) -> None:
     rng = np.random.default_rng(0)
     fig, axes = plt.subplots(1, 3, figsize=(18, 6))
     for ax, view in zip(axes, ("top", "front", "side"), strict=True):
-        _plot_cloud_and_paths(ax, clean.points, path, gt, view, rng)
+        plot_cloud_and_paths(ax, clean.points, path, gt, view, rng)
     axes[0].legend(loc="upper right")
     fig.suptitle(f"{ctx.profile.name}: {len(path.seams)} seam(s) on the reconstructed part")
     fig.tight_layout()
