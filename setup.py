@@ -6,7 +6,12 @@
 
 from setuptools import find_packages, setup
 
-FOLDERS = {"weldcell.sdk": "sdk", "weldcell.hal": "hal", "weldcell.plugins": "plugins", "weldcell.testing": "testing"}
+FOLDERS = {
+    "weldcell.sdk": "sdk",
+    "weldcell.hal": "hal",
+    "weldcell.plugins": "plugins",
+    "weldcell.testing": "testing",
+}
 
 packages = []
 for prefix, folder in FOLDERS.items():

@@ -83,8 +83,9 @@ def run_case(kind: str, seed: int, views: int, hand_eye_error: bool) -> dict:
     T_fc = np.eye(4)
     if hand_eye_error:
         axis, direction = rng.normal(size=3), rng.normal(size=3)
-        T_fc = T_from_rotvec(axis / np.linalg.norm(axis) * np.radians(0.3),
-                             direction / np.linalg.norm(direction) * 0.001)
+        T_fc = T_from_rotvec(
+            axis / np.linalg.norm(axis) * np.radians(0.3), direction / np.linalg.norm(direction) * 0.001
+        )
     scans, viewpoints = [], []
     t_cap = time.perf_counter()
     for T_wc in view_poses(target, views):
@@ -115,7 +116,8 @@ def run_case(kind: str, seed: int, views: int, hand_eye_error: bool) -> dict:
         "t_mm": m.get("translation_rmse_mm", float("nan")),
         "r_deg": m.get("rotation_rmse_deg", float("nan")),
         "a_deg": float(np.degrees(np.sqrt(np.mean([p["approach_rad"] ** 2 for p in m.get("per_seam", [])]))))
-        if m.get("per_seam") else float("nan"),
+        if m.get("per_seam")
+        else float("nan"),
         "f1": m["f1"]["f1"] if "f1" in m else 0.0,
         "on_seams": len(on),
         "on_t_mm": m_on.get("translation_rmse_mm", float("nan")),
@@ -140,17 +142,24 @@ def main() -> None:
         for variant in ("exact", "hand-eye"):
             res = [run_case(kind, s, args.views, variant == "hand-eye") for s in range(args.seeds)]
             for i, r in enumerate(res):
-                print(f"  {kind} {variant} seed {i}: {r['seams']} seam(s), n_d {r['n_d']}, "
-                      f"{r['t_mm']:.3f} mm, {r['r_deg']:.3f} deg (approach {r['a_deg']:.3f}), "
-                      f"F1 {r['f1']:.3f}, length {r['length_ratio']:.3f}, {r['points']} pts, "
-                      f"reconstruct {r['t_reconstruct']:.1f} s, plan {r['t_plan']:.2f} s", flush=True)
+                print(
+                    f"  {kind} {variant} seed {i}: {r['seams']} seam(s), n_d {r['n_d']}, "
+                    f"{r['t_mm']:.3f} mm, {r['r_deg']:.3f} deg (approach {r['a_deg']:.3f}), "
+                    f"F1 {r['f1']:.3f}, length {r['length_ratio']:.3f}, {r['points']} pts, "
+                    f"reconstruct {r['t_reconstruct']:.1f} s, plan {r['t_plan']:.2f} s",
+                    flush=True,
+                )
             rows.append((kind, variant, res))
     print()
-    print(f"Table I (paper 000) in simulation: D415 noise, {args.views}+1 views, {args.seeds} seeds "
-          "(mean; worst seed in brackets)")
+    print(
+        f"Table I (paper 000) in simulation: D415 noise, {args.views}+1 views, {args.seeds} seeds "
+        "(mean; worst seed in brackets)"
+    )
     print()
-    print("| workpiece | poses | n_d | n_o | seams | F1 (eq. 21) | RMSE_p mm | RMSE_theta deg | "
-          "paper n_d / n_o | paper RMSE_p | paper RMSE_theta | on-seam: seams, recall, mm, deg |")
+    print(
+        "| workpiece | poses | n_d | n_o | seams | F1 (eq. 21) | RMSE_p mm | RMSE_theta deg | "
+        "paper n_d / n_o | paper RMSE_p | paper RMSE_theta | on-seam: seams, recall, mm, deg |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for kind, variant, res in rows:
         pd, po, pp, pt = PAPER[kind]
@@ -159,13 +168,15 @@ def main() -> None:
             v = [r[key] for r in res]
             return f"{statistics.mean(v):.2f} [{max(v):.2f}]"
 
-        print(f"| {kind} | {variant} | {statistics.mean(r['n_d'] for r in res):.0f} | "
-              f"{statistics.mean(r['n_o'] for r in res):.0f} | "
-              f"{statistics.mean(r['seams'] for r in res):.1f} | "
-              f"{statistics.mean(r['f1'] for r in res):.3f} | "
-              f"{stat('t_mm')} | {stat('r_deg')} | {pd} / {po} | {pp} | {pt} | "
-              f"{statistics.mean(r['on_seams'] for r in res):.1f}, "
-              f"{statistics.mean(r['on_recall'] for r in res):.2f}, {stat('on_t_mm')}, {stat('on_r_deg')} |")
+        print(
+            f"| {kind} | {variant} | {statistics.mean(r['n_d'] for r in res):.0f} | "
+            f"{statistics.mean(r['n_o'] for r in res):.0f} | "
+            f"{statistics.mean(r['seams'] for r in res):.1f} | "
+            f"{statistics.mean(r['f1'] for r in res):.3f} | "
+            f"{stat('t_mm')} | {stat('r_deg')} | {pd} / {po} | {pp} | {pt} | "
+            f"{statistics.mean(r['on_seams'] for r in res):.1f}, "
+            f"{statistics.mean(r['on_recall'] for r in res):.2f}, {stat('on_t_mm')}, {stat('on_r_deg')} |"
+        )
 
 
 if __name__ == "__main__":

@@ -114,11 +114,20 @@ def run(placement: str, preset: str, distance: float, repeats: int, seed: int) -
     seam = wp.seams_in_world()[0]
     m = evaluate(path, [("v-groove", seam)], 0.015)
     length = sum(s.length for s in ex.seams)
-    return dict(placement=placement, n_capture=n_cap, n_roi=n_roi, n_clean=n_clean, seams=len(ex.seams),
-                length_mm=length * 1000, plan_ms=plan * 1000, total_ms=total * 1000,
-                speed=length * 1000 / plan if plan > 0 else 0.0,
-                f1=m.get("f1", {}).get("f1", 0.0), t_mm=m.get("translation_rmse_mm", float("nan")),
-                r_deg=m.get("rotation_rmse_deg", float("nan")))
+    return dict(
+        placement=placement,
+        n_capture=n_cap,
+        n_roi=n_roi,
+        n_clean=n_clean,
+        seams=len(ex.seams),
+        length_mm=length * 1000,
+        plan_ms=plan * 1000,
+        total_ms=total * 1000,
+        speed=length * 1000 / plan if plan > 0 else 0.0,
+        f1=m.get("f1", {}).get("f1", 0.0),
+        t_mm=m.get("translation_rmse_mm", float("nan")),
+        r_deg=m.get("rotation_rmse_deg", float("nan")),
+    )
 
 
 def main() -> None:
@@ -134,17 +143,23 @@ def main() -> None:
         print(f"  {placement}: {r}", flush=True)
         rows.append(r)
     print()
-    print(f"Table II (paper 000) in simulation: {args.preset}, one frame at {args.distance} m, median of "
-          f"{args.repeats} runs")
+    print(
+        f"Table II (paper 000) in simulation: {args.preset}, one frame at {args.distance} m, median of "
+        f"{args.repeats} runs"
+    )
     print()
-    print("| placement | points (frame / ROI / denoised) | seams | seam mm | F1 | RMSE mm / deg | "
-          "plan ms | capture-to-path ms | mm/s | paper ms | paper mm/s |")
+    print(
+        "| placement | points (frame / ROI / denoised) | seams | seam mm | F1 | RMSE mm / deg | "
+        "plan ms | capture-to-path ms | mm/s | paper ms | paper mm/s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         pm, ps = PAPER[r["placement"]]
-        print(f"| {r['placement']} | {r['n_capture']} / {r['n_roi']} / {r['n_clean']} | {r['seams']} | "
-              f"{r['length_mm']:.1f} | {r['f1']:.3f} | {r['t_mm']:.2f} / {r['r_deg']:.2f} | "
-              f"{r['plan_ms']:.0f} | {r['total_ms']:.0f} | {r['speed']:.0f} | {pm} | {ps} |")
+        print(
+            f"| {r['placement']} | {r['n_capture']} / {r['n_roi']} / {r['n_clean']} | {r['seams']} | "
+            f"{r['length_mm']:.1f} | {r['f1']:.3f} | {r['t_mm']:.2f} / {r['r_deg']:.2f} | "
+            f"{r['plan_ms']:.0f} | {r['total_ms']:.0f} | {r['speed']:.0f} | {pm} | {ps} |"
+        )
 
 
 if __name__ == "__main__":

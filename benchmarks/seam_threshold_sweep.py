@@ -110,10 +110,23 @@ def main() -> None:
                 pts = np.vstack([s.points for s in res.seams]) if res.seams else np.zeros((0, 3))
                 dev = cKDTree(gt).query(pts)[0] if len(pts) else np.array([np.nan])
                 sf1 = seam_f1(pts, gt, cell=args.cell, tolerance_cells=1)["f1"] if len(pts) else 0.0
-                seam_rows.append((name, stage, seed, len(Pv), len(res.seams), sf1, 1e3 * np.mean(dev),
-                                  1e3 * np.max(dev), 1e3 * dt))
-    print(f"noise {args.noise * 1e3:.2f} mm, voxel {args.voxel * 1e3:.1f} mm, cell {args.cell * 1e3:.1f} mm, "
-          f"{args.seeds} seeds; F1 (eq. 21) of the eq. 16 edge points (min_intensity=0) against t")
+                seam_rows.append(
+                    (
+                        name,
+                        stage,
+                        seed,
+                        len(Pv),
+                        len(res.seams),
+                        sf1,
+                        1e3 * np.mean(dev),
+                        1e3 * np.max(dev),
+                        1e3 * dt,
+                    )
+                )
+    print(
+        f"noise {args.noise * 1e3:.2f} mm, voxel {args.voxel * 1e3:.1f} mm, cell {args.cell * 1e3:.1f} mm, "
+        f"{args.seeds} seeds; F1 (eq. 21) of the eq. 16 edge points (min_intensity=0) against t"
+    )
     print("workpiece  stage      " + " ".join(f"{t:>6g}" for t in THRESHOLDS))
     for (name, stage), v in rows.items():
         m = np.mean(v, axis=0)

@@ -8,10 +8,17 @@ of :class:`~weldcell.hal.lifecycle.Device`). The public methods check the lifecy
 from __future__ import annotations
 
 import numpy as np
-
 from weldcell.hal.lifecycle import Device
-from weldcell.hal.readings import DepthFrame, Displacement, HandsFrame, Image, ImuReading, Intrinsics
-from weldcell.hal.readings import GnssFix, Projection
+from weldcell.hal.readings import (
+    DepthFrame,
+    Displacement,
+    GnssFix,
+    HandsFrame,
+    Image,
+    ImuReading,
+    Intrinsics,
+    Projection,
+)
 
 
 class DepthCamera(Device):
@@ -81,7 +88,9 @@ class LaserProjector(Device):
         if seg.ndim != 3 or seg.shape[1:] != (2, 3):
             from weldcell.sdk.errors import DataError
 
-            raise DataError(f"segments must be (N, 2, 3), got {seg.shape}", "pass start/end points per segment")
+            raise DataError(
+                f"segments must be (N, 2, 3), got {seg.shape}", "pass start/end points per segment"
+            )
         self._project(seg, label)
         return Projection(stamp=self.mark_reading(), segments=seg, label=label)
 

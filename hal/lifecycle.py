@@ -140,8 +140,10 @@ class Device:
                 self.on_recover()
             except Exception as e:
                 self._error = f"recover failed: {e}"
-                raise DeviceError(f"{self.kind} '{self.name}': recover failed: {e}",
-                                  "check the device and its connection, then try again") from e
+                raise DeviceError(
+                    f"{self.kind} '{self.name}': recover failed: {e}",
+                    "check the device and its connection, then try again",
+                ) from e
             self._state = State.UNCONFIGURED
             self._error = ""
 
@@ -166,8 +168,12 @@ class Device:
     def health(self) -> Health:
         """State, the last error, and the age of the last reading."""
         age = None if self._last_reading is None else max(0.0, time.time() - self._last_reading)
-        return Health(ok=self._state in (State.INACTIVE, State.ACTIVE), state=self._state, message=self._error,
-                      last_reading_age=age)
+        return Health(
+            ok=self._state in (State.INACTIVE, State.ACTIVE),
+            state=self._state,
+            message=self._error,
+            last_reading_age=age,
+        )
 
     # -- context manager -------------------------------------------------------------------------
     def __enter__(self):

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 from pydantic import Field
-
 from weldcell.hal.interfaces import INTERFACES
 from weldcell.hal.lifecycle import Device
 from weldcell.hal.readings import RobotState
@@ -32,8 +31,12 @@ log = logging.getLogger("weldcell.robot")
 class RobotMotionSettings(Settings):
     """Motion defaults and the tool offset, shared by every robot adapter's settings."""
 
-    tcp_xyz: tuple[Length, Length, Length] = Field((0.0, 0.0, 0.0), description="TCP offset from the flange [m]")
-    tcp_rpy: tuple[Angle, Angle, Angle] = Field((0.0, 0.0, 0.0), description="TCP rotation from the flange [rad]")
+    tcp_xyz: tuple[Length, Length, Length] = Field(
+        (0.0, 0.0, 0.0), description="TCP offset from the flange [m]"
+    )
+    tcp_rpy: tuple[Angle, Angle, Angle] = Field(
+        (0.0, 0.0, 0.0), description="TCP rotation from the flange [rad]"
+    )
     speed: Speed = Field(0.05, gt=0, description="default TCP speed [m/s]")
     accel: Acceleration = Field(0.5, gt=0, description="default TCP acceleration [m/s^2]")
     joint_speed: AngularSpeed = Field(0.5, gt=0, description="default joint speed [rad/s]")
@@ -74,8 +77,13 @@ class Robot(Device):
         self.require_active()
         q, T_base_flange, extra = self._read_state()
         self.mark_reading()
-        return RobotState(stamp=time.time(), q=np.asarray(q, dtype=float), T_base_flange=T_base_flange,
-                          T_base_tcp=T_base_flange @ self.T_flange_tcp, **extra)
+        return RobotState(
+            stamp=time.time(),
+            q=np.asarray(q, dtype=float),
+            T_base_flange=T_base_flange,
+            T_base_tcp=T_base_flange @ self.T_flange_tcp,
+            **extra,
+        )
 
     def _flange(self, T_base_tcp: np.ndarray) -> np.ndarray:
         return np.asarray(T_base_tcp, dtype=float) @ invert(self.T_flange_tcp)
@@ -84,21 +92,29 @@ class Robot(Device):
         if self.dry_run:
             entry = DryRunEntry(time.time(), command, args)
             self.dry_run_log.append(entry)
-            log.info("dry run: %s %s", command, {k: np.round(v, 5).tolist() if isinstance(v, np.ndarray) else v
-                                                 for k, v in args.items()})
+            log.info(
+                "dry run: %s %s",
+                command,
+                {k: np.round(v, 5).tolist() if isinstance(v, np.ndarray) else v for k, v in args.items()},
+            )
             return None
         return fn(**args)
 
     # -- motions ---------------------------------------------------------------------------------
-    def move_linear(self, T_base_tcp: np.ndarray, speed: float | None = None, accel: float | None = None) -> None:
+    def move_linear(
+        self, T_base_tcp: np.ndarray, speed: float | None = None, accel: float | None = None
+    ) -> None:
         """Straight-line TCP move to ``T_base_tcp``."""
         self.require_active()
         speed = self.motion.speed if speed is None else speed
         accel = self.motion.accel if accel is None else accel
         st = self.state()
-        self.gate.check_linear(st.T_base_tcp, T_base_tcp, self.T_flange_tcp, speed, accel, st.q, "linear move")
-        self._send("move_linear", self._move_linear, T_base_flange=self._flange(T_base_tcp), speed=speed,
-                   accel=accel)
+        self.gate.check_linear(
+            st.T_base_tcp, T_base_tcp, self.T_flange_tcp, speed, accel, st.q, "linear move"
+        )
+        self._send(
+            "move_linear", self._move_linear, T_base_flange=self._flange(T_base_tcp), speed=speed, accel=accel
+        )
 
     def move_joint(self, q: np.ndarray, speed: float | None = None, accel: float | None = None) -> None:
         """Joint-space move to ``q`` (rad)."""
@@ -116,8 +132,9 @@ class Robot(Device):
                 self.gate.check_point(T[:3, 3], f"joint move at {100 * s:.0f}% of the motion")
         self._send("move_joint", self._move_joint, q=q, speed=speed, accel=accel)
 
-    def follow_path(self, poses: np.ndarray, speed: float | None = None, accel: float | None = None,
-                    blend: float = 0.0) -> None:
+    def follow_path(
+        self, poses: np.ndarray, speed: float | None = None, accel: float | None = None, blend: float = 0.0
+    ) -> None:
         """Follow TCP poses (K, 4, 4) in order with linear segments (blended by ``blend`` metres).
 
         The whole path is checked, from the current pose, before anything is sent.
@@ -125,7 +142,9 @@ class Robot(Device):
         self.require_active()
         poses = np.asarray(poses, dtype=float)
         if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
-            raise DataError(f"a path must be (K, 4, 4) TCP poses, got {poses.shape}", "pass a stack of 4x4 poses")
+            raise DataError(
+                f"a path must be (K, 4, 4) TCP poses, got {poses.shape}", "pass a stack of 4x4 poses"
+            )
         speed = self.motion.speed if speed is None else speed
         accel = self.motion.accel if accel is None else accel
         st = self.state()

@@ -12,7 +12,6 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
-
 from weldcell.sdk.cell import SafetyLimits
 from weldcell.sdk.errors import SafetyError
 from weldcell.sdk.geometry import interpolate_poses, rotation_angle
@@ -65,7 +64,9 @@ class SafetyGate:
                 "cell really allows it",
             )
         reach = self.reach
-        dist_fn = getattr(self.model, "distance_from_shoulder", None) if self.limits.max_reach is None else None
+        dist_fn = (
+            getattr(self.model, "distance_from_shoulder", None) if self.limits.max_reach is None else None
+        )
         dist = float(dist_fn(p)) if dist_fn is not None else float(np.linalg.norm(p))
         if reach is not None and dist > reach:
             origin = "shoulder" if dist_fn is not None else "base"
@@ -79,7 +80,8 @@ class SafetyGate:
         lim = self.limits
         if not (0 < speed <= lim.max_linear_speed):
             raise SafetyError(
-                f"TCP speed {speed:.4g} m/s is not within (0, {lim.max_linear_speed:.4g}] m/s (the cell's cap)",
+                f"TCP speed {speed:.4g} m/s is not within (0, {lim.max_linear_speed:.4g}] m/s "
+                "(the cell's cap)",
                 "lower the speed, or raise [cell.safety] max_linear_speed if the process allows it",
             )
         if not (0 < accel <= lim.max_linear_accel):
@@ -97,7 +99,8 @@ class SafetyGate:
             )
         if not (0 < accel <= lim.max_joint_accel):
             raise SafetyError(
-                f"joint acceleration {accel:.4g} rad/s^2 is not within (0, {lim.max_joint_accel:.4g}] rad/s^2",
+                f"joint acceleration {accel:.4g} rad/s^2 is not within "
+                f"(0, {lim.max_joint_accel:.4g}] rad/s^2",
                 "lower the acceleration, or raise [cell.safety] max_joint_accel",
             )
 
@@ -108,8 +111,10 @@ class SafetyGate:
         q = np.asarray(q, dtype=float)
         lim = np.asarray(self.model.joint_limits, dtype=float)
         if q.shape != (len(lim),):
-            raise SafetyError(f"{what} has {q.size} joint values; the {self.model.name} has {len(lim)} joints",
-                              "give one value per joint, in radians")
+            raise SafetyError(
+                f"{what} has {q.size} joint values; the {self.model.name} has {len(lim)} joints",
+                "give one value per joint, in radians",
+            )
         bad = np.nonzero((q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9))[0]
         if len(bad):
             j = int(bad[0])
@@ -119,7 +124,9 @@ class SafetyGate:
                 "choose another configuration or target",
             )
 
-    def solve(self, T_base_flange: np.ndarray, q_seed: np.ndarray | None, what: str = "target") -> np.ndarray | None:
+    def solve(
+        self, T_base_flange: np.ndarray, q_seed: np.ndarray | None, what: str = "target"
+    ) -> np.ndarray | None:
         """IK within limits (None when there is no model). SafetyError when there is no solution."""
         if self.model is None:
             return None
@@ -177,11 +184,14 @@ class SafetyGate:
             )
         if w > self.limits.max_angular_speed:
             raise SafetyError(
-                f"angular velocity command {w:.4g} rad/s exceeds the cap {self.limits.max_angular_speed:.4g} rad/s",
+                f"angular velocity command {w:.4g} rad/s exceeds the cap "
+                f"{self.limits.max_angular_speed:.4g} rad/s",
                 "lower the servo gain or raise [cell.safety] max_angular_speed",
             )
         if not (0 < accel <= self.limits.max_linear_accel):
-            raise SafetyError(f"acceleration {accel:.4g} m/s^2 is not within (0, {self.limits.max_linear_accel}]",
-                              "lower the acceleration")
+            raise SafetyError(
+                f"acceleration {accel:.4g} m/s^2 is not within (0, {self.limits.max_linear_accel}]",
+                "lower the acceleration",
+            )
         p_next = np.asarray(T_base_tcp)[:3, 3] + tw[:3] * horizon
         self.check_point(p_next, f"velocity command (TCP after {horizon:.3g} s)")

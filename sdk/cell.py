@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pydantic import Field, model_validator
-
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Acceleration, AngularAcceleration, AngularSpeed, Length, Speed
 
@@ -23,8 +22,10 @@ class SafetyLimits(Settings):
     max_joint_speed: AngularSpeed = Field(1.5, gt=0, description="joint speed cap [rad/s]")
     max_joint_accel: AngularAcceleration = Field(4.0, gt=0, description="joint acceleration cap [rad/s^2]")
     max_reach: Length | None = Field(
-        None, gt=0, description="TCP distance from the base axis above which a target is refused [m]; "
-        "default: the robot model's reach"
+        None,
+        gt=0,
+        description="TCP distance from the base axis above which a target is refused [m]; "
+        "default: the robot model's reach",
     )
     path_check_step: Length = Field(0.005, gt=0, description="spacing of the checks along a linear path [m]")
 

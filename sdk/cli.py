@@ -16,7 +16,6 @@ from pathlib import Path
 import click
 from rich.console import Console
 from rich.markup import escape
-
 from weldcell.sdk.errors import WeldcellError
 from weldcell.sdk.plugins import get_plugin_manager
 
@@ -32,8 +31,14 @@ class RichReporter:
 
         self.quiet = quiet
         self._progress = Progress(
-            TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[msg]}"),
-            TimeElapsedColumn(), console=console, transient=True, disable=quiet,
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[msg]}"),
+            TimeElapsedColumn(),
+            console=console,
+            transient=True,
+            disable=quiet,
         )
         self._tasks: dict[str, int] = {}
 
@@ -124,7 +129,9 @@ def main(ctx: click.Context, debug: bool, strict_plugins: bool) -> None:
 
 @main.command()
 @click.argument("profile", type=click.Path(path_type=Path))
-@click.option("--resume", "resume", type=click.Path(path_type=Path), help="Continue an interrupted run folder.")
+@click.option(
+    "--resume", "resume", type=click.Path(path_type=Path), help="Continue an interrupted run folder."
+)
 @click.option("--runs-dir", type=click.Path(path_type=Path), help="Where to create the run folder.")
 @click.option("--dry-run", is_flag=True, help="Log motion commands instead of sending them.")
 @click.option("-q", "--quiet", is_flag=True, help="Print only the summary.")
@@ -142,8 +149,9 @@ def run(profile: Path, resume: Path | None, runs_dir: Path | None, dry_run: bool
     if not quiet:
         console.print(f"[bold]weldcell run[/bold] {profile}")
     t0 = time.perf_counter()
-    run_dir, result = run_job(profile, pm, run_dir=resume, runs_dir=runs_dir, reporter=reporter,
-                              overrides=overrides)
+    run_dir, result = run_job(
+        profile, pm, run_dir=resume, runs_dir=runs_dir, reporter=reporter, overrides=overrides
+    )
     summary = run_dir / "summary.txt"
     if summary.is_file():
         out.print(summary.read_text().rstrip())

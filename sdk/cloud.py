@@ -7,7 +7,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-
 from weldcell.sdk.errors import DataError
 
 UNIT_SCALE = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "um": 1e-6}
@@ -130,7 +129,9 @@ def check_units(cloud: PointCloud, declared: str, what: str = "point cloud") -> 
         )
 
 
-def read_cloud(path: str | Path, units: str = "m", frame: str = "base", check_scale: bool = True) -> PointCloud:
+def read_cloud(
+    path: str | Path, units: str = "m", frame: str = "base", check_scale: bool = True
+) -> PointCloud:
     """Read a PLY or PCD file whose coordinates are in ``units``; return it in metres.
 
     Raises :class:`DataError` for a missing, unreadable or empty file, NaNs, or (with ``check_scale``)
@@ -159,7 +160,6 @@ def read_cloud(path: str | Path, units: str = "m", frame: str = "base", check_sc
 def write_cloud(path: str | Path, cloud: PointCloud, binary: bool = True) -> Path:
     """Write a PLY or PCD file (metres) atomically."""
     import open3d as o3d
-
     from weldcell.sdk.artifacts import atomic_path
 
     path = Path(path)

@@ -73,7 +73,9 @@ class Descriptor:
         """Raise :class:`MissingExtraError` naming the extra (of ``distribution``, default weldcell)
         when a required module is missing."""
         for module, extra in self.missing_extras():
-            raise MissingExtraError(f"{self.category} '{self.name}'", module, extra, distribution or "weldcell")
+            raise MissingExtraError(
+                f"{self.category} '{self.name}'", module, extra, distribution or "weldcell"
+            )
 
 
 @dataclass(frozen=True)
@@ -122,7 +124,7 @@ class DeviceRole:
 
 @dataclass(frozen=True)
 class StageRole:
-    """A method slot of a job, filled by a stage plugin of ``kind`` (``default`` when the profile is silent)."""
+    """A method slot of a job, filled by a stage plugin of ``kind`` (``default`` if the profile is silent)."""
 
     role: str
     kind: str

@@ -158,7 +158,9 @@ def frame_from_axes(x: ArrayLike, z: ArrayLike, origin: ArrayLike | None = None)
     x = x - np.dot(x, z) * z
     n = np.linalg.norm(x)
     if n < 1e-9:
-        raise ValueError("frame_from_axes: x is parallel to z; give a travel direction not along the approach")
+        raise ValueError(
+            "frame_from_axes: x is parallel to z; give a travel direction not along the approach"
+        )
     x = x / n
     y = np.cross(z, x)
     return make_T(np.column_stack([x, y, z]), origin)

@@ -19,7 +19,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import pluggy
-
 from weldcell.sdk.descriptors import CommandSpec, DeviceSpec, ExporterSpec, JobSpec, StageSpec
 
 PROJECT = "weldcell"

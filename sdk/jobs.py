@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from weldcell.sdk import artifacts
 from weldcell.sdk.errors import DeviceError, JobError, WeldcellError
 from weldcell.sdk.geometry import T_from_rpy
@@ -147,7 +146,9 @@ class RunContext:
     def device(self, role: str) -> Any:
         """An open device by role; a clear error when the profile has none."""
         if role not in self.devices:
-            raise DeviceError(f"this run has no device '{role}'", f"add [devices.{role}] to {self.loaded.path}")
+            raise DeviceError(
+                f"this run has no device '{role}'", f"add [devices.{role}] to {self.loaded.path}"
+            )
         return self.devices[role]
 
     def calibration_file(self, name: str) -> Path | None:
@@ -187,8 +188,10 @@ class RunContext:
         try:
             yield advance
         except BaseException as e:
-            self.state.data["steps"][name] = {"status": "failed", "error": str(e).splitlines()[0] if str(e) else
-                                              type(e).__name__}
+            self.state.data["steps"][name] = {
+                "status": "failed",
+                "error": str(e).splitlines()[0] if str(e) else type(e).__name__,
+            }
             self.state.save()
             raise
         dt = time.perf_counter() - t0
@@ -219,8 +222,10 @@ def provenance(ctx: RunContext) -> dict[str, Any]:
         "platform": platform.platform(),
         "profile": str(ctx.loaded.path),
         "profile_files_sha256": files,
-        "plugins": {k: {"plugin": p.plugin, "distribution": p.distribution, "version": p.version}
-                    for k, p in used.items()},
+        "plugins": {
+            k: {"plugin": p.plugin, "distribution": p.distribution, "version": p.version}
+            for k, p in used.items()
+        },
         "settings": {
             "job": ctx.settings.model_dump(mode="json") if ctx.settings is not None else {},
             "stages": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["stages"].items()},
@@ -256,8 +261,14 @@ def open_devices(ctx: RunContext, stack: contextlib.ExitStack) -> None:
     for role, (spec, settings) in ctx.resolved["devices"].items():
         entry = p.devices[role]
         dctx = DeviceContext(
-            role=role, mount=entry.mount, profile=ctx.loaded, shared=ctx.shared, devices=ctx.devices,
-            dry_run=p.cell.dry_run, safety=p.cell.safety, seed=p.cell.seed,
+            role=role,
+            mount=entry.mount,
+            profile=ctx.loaded,
+            shared=ctx.shared,
+            devices=ctx.devices,
+            dry_run=p.cell.dry_run,
+            safety=p.cell.safety,
+            seed=p.cell.seed,
         )
         with ctx.step(f"open {role} ({spec.name})"):
             device = spec.factory(settings, dctx)
@@ -290,8 +301,12 @@ def run_job(
     ctx = RunContext(loaded, resolved, pm, run, reporter or Reporter())
     spec = resolved["job_spec"]
     started = datetime.now(UTC).isoformat()
-    result: dict[str, Any] = {"schema": RESULT_SCHEMA, "job": spec.name, "profile": loaded.profile.name,
-                              "started": started}
+    result: dict[str, Any] = {
+        "schema": RESULT_SCHEMA,
+        "job": spec.name,
+        "profile": loaded.profile.name,
+        "started": started,
+    }
     try:
         with contextlib.ExitStack() as stack:
             open_devices(ctx, stack)
@@ -301,13 +316,20 @@ def run_job(
         result.update(status="failed", error={"type": type(e).__name__, "message": e.message, "fix": e.fix})
         raise
     except KeyboardInterrupt:
-        result.update(status="interrupted", error={"message": "interrupted by the operator",
-                                                   "fix": f"weldcell run {profile_path} --resume {run}"})
+        result.update(
+            status="interrupted",
+            error={
+                "message": "interrupted by the operator",
+                "fix": f"weldcell run {profile_path} --resume {run}",
+            },
+        )
         raise
     except Exception as e:
         result.update(status="failed", error={"type": type(e).__name__, "message": str(e)})
-        raise JobError(f"job '{spec.name}' failed: {type(e).__name__}: {e}",
-                       f"captures so far are kept in {run}; rerun with --debug for the traceback") from e
+        raise JobError(
+            f"job '{spec.name}' failed: {type(e).__name__}: {e}",
+            f"captures so far are kept in {run}; rerun with --debug for the traceback",
+        ) from e
     finally:
         result["finished"] = datetime.now(UTC).isoformat()
         result["provenance"] = provenance(ctx)

@@ -8,7 +8,6 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
-
 from weldcell.sdk.errors import WeldcellError
 from weldcell.sdk.plugins import CATEGORIES, PluginManager
 
@@ -21,12 +20,20 @@ def plugin_rows(pm: PluginManager) -> list[dict]:
         for entry in reg.all(category):
             d = entry.descriptor
             missing = d.missing_extras() if hasattr(d, "missing_extras") else []
-            rows.append({
-                "category": category, "name": d.name, "kind": getattr(d, "kind", ""),
-                "summary": getattr(d, "summary", ""), "plugin": entry.provider.plugin,
-                "distribution": entry.provider.distribution, "version": entry.provider.version,
-                "status": "ok" if not missing else "needs " + ", ".join(f"weldcell[{x}]" for _, x in missing),
-            })
+            rows.append(
+                {
+                    "category": category,
+                    "name": d.name,
+                    "kind": getattr(d, "kind", ""),
+                    "summary": getattr(d, "summary", ""),
+                    "plugin": entry.provider.plugin,
+                    "distribution": entry.provider.distribution,
+                    "version": entry.provider.version,
+                    "status": "ok"
+                    if not missing
+                    else "needs " + ", ".join(f"weldcell[{x}]" for _, x in missing),
+                }
+            )
     return rows
 
 
@@ -35,20 +42,33 @@ def plugin_table(pm: PluginManager, out: Console, as_json: bool = False) -> None
     reg = pm.registry
     rows = plugin_rows(pm)
     if as_json:
-        out.print_json(json.dumps({
-            "registered": rows,
-            "failures": [{"plugin": f.provider.plugin, "distribution": f.provider.distribution,
-                          "entry_point": f.provider.entry_point, "stage": f.stage, "error": f.error}
-                         for f in reg.failures],
-            "conflicts": [str(c) for c in reg.conflicts.values()],
-        }))
+        out.print_json(
+            json.dumps(
+                {
+                    "registered": rows,
+                    "failures": [
+                        {
+                            "plugin": f.provider.plugin,
+                            "distribution": f.provider.distribution,
+                            "entry_point": f.provider.entry_point,
+                            "stage": f.stage,
+                            "error": f.error,
+                        }
+                        for f in reg.failures
+                    ],
+                    "conflicts": [str(c) for c in reg.conflicts.values()],
+                }
+            )
+        )
         return
     plugins: dict[str, list[dict]] = {}
     for r in rows:
         plugins.setdefault(r["plugin"], []).append(r)
     for name in sorted(plugins):
         first = plugins[name][0]
-        dist = f"{first['distribution']} {first['version']}" if first["distribution"] else "(registered by hand)"
+        dist = (
+            f"{first['distribution']} {first['version']}" if first["distribution"] else "(registered by hand)"
+        )
         t = Table(title=f"plugin [bold]{name}[/bold] — {dist}", title_justify="left", show_edge=False)
         for col in ("category", "name", "kind", "status", "summary"):
             t.add_column(col, overflow="fold")
@@ -95,6 +115,8 @@ def device_report(pm: PluginManager, out: Console, profile: Path | None) -> int:
             out.print(f"  {role}: {spec.name}: [green]reachable[/green] {escape(spec.probe(settings))}")
         except WeldcellError as e:
             code = 5
-            out.print(f"  {role}: {spec.name}: [red]not reachable[/red]: {escape(e.message)}"
-                      + (f" ({escape(e.fix)})" if e.fix else ""))
+            out.print(
+                f"  {role}: {spec.name}: [red]not reachable[/red]: {escape(e.message)}"
+                + (f" ({escape(e.fix)})" if e.fix else "")
+            )
     return code

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import pluggy
-
 from weldcell.sdk import hookspecs
 from weldcell.sdk.descriptors import CommandSpec, Descriptor, DeviceSpec, ExporterSpec, JobSpec, StageSpec
 from weldcell.sdk.errors import PluginError, UnknownPluginError
@@ -135,14 +134,19 @@ class Registry:
 
     def _unknown_fix(self, name: str) -> str:
         prefix = name.split(".")[0]
-        broken = [f for f in self.failures if prefix in f.provider.plugin or prefix in (f.provider.distribution or "")]
+        broken = [
+            f
+            for f in self.failures
+            if prefix in f.provider.plugin or prefix in (f.provider.distribution or "")
+        ]
         if broken:
             return "this plugin failed to load and may provide it: " + "; ".join(str(f) for f in broken)
         if self.failures:
             names = ", ".join(f.provider.plugin for f in self.failures)
             return (
                 f"plugins that failed to load may provide it ({names}); see `weldcell plugins`. "
-                "Otherwise install the package that provides it (it registers through the 'weldcell' entry points)"
+                "Otherwise install the package that provides it "
+                "(it registers through the 'weldcell' entry points)"
             )
         return (
             "install the package that provides it (its plugin registers through the 'weldcell' entry-point "
@@ -235,8 +239,9 @@ class PluginManager:
             try:
                 problems.extend(impl.function(profile=loaded) or [])
             except Exception as e:  # noqa: BLE001
-                problems.append(((), f"plugin '{impl.plugin_name}' failed to check the profile: "
-                                     f"{type(e).__name__}: {e}"))
+                problems.append(
+                    ((), f"plugin '{impl.plugin_name}' failed to check the profile: {type(e).__name__}: {e}")
+                )
         return problems
 
     # -- collection ------------------------------------------------------------------------------
@@ -268,8 +273,12 @@ class PluginManager:
                     impl.function(register=register)
                 except Exception as e:  # noqa: BLE001 - one broken plugin must not stop the others
                     reg.failures.append(
-                        PluginFailure(provider, f"register {category}s", f"{type(e).__name__}: {e}",
-                                      traceback.format_exc())
+                        PluginFailure(
+                            provider,
+                            f"register {category}s",
+                            f"{type(e).__name__}: {e}",
+                            traceback.format_exc(),
+                        )
                     )
                     continue
                 for item in got:

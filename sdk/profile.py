@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import Field, ValidationError
-
 from weldcell.sdk.cell import CellSettings
 from weldcell.sdk.errors import ProfileError, WeldcellError
 from weldcell.sdk.settings import Settings
@@ -80,7 +79,8 @@ class OutputSettings(Settings):
     runs_dir: str = Field("runs", description="folder for run folders, relative to the working directory")
     exporters: list[str] = Field(default_factory=list, description="exporter plugins to run on the result")
     exporter_settings: dict[str, dict[str, Any]] = Field(
-        default_factory=dict, description="settings per exporter name, e.g. [output.exporter_settings.\"export.urscript\"]"
+        default_factory=dict,
+        description='settings per exporter name, e.g. [output.exporter_settings."export.urscript"]',
     )
     report: bool = Field(True, description="write report.md and pictures")
 
@@ -96,7 +96,9 @@ class Profile(Settings):
     cell: CellSettings = Field(default_factory=CellSettings)
     devices: dict[str, DeviceEntry] = Field(default_factory=dict)
     stages: dict[str, StageEntry] = Field(default_factory=dict)
-    calibration: dict[str, str] = Field(default_factory=dict, description="name -> file, relative to the profile")
+    calibration: dict[str, str] = Field(
+        default_factory=dict, description="name -> file, relative to the profile"
+    )
     sim: SimSection = Field(default_factory=SimSection)
     output: OutputSettings = Field(default_factory=OutputSettings)
 
@@ -198,7 +200,9 @@ def _fmt(loc: tuple) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
 
 
-def pydantic_problems(err: ValidationError, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], str]]:
+def pydantic_problems(
+    err: ValidationError, prefix: tuple[str, ...] = ()
+) -> list[tuple[tuple[str, ...], str]]:
     """Turn pydantic errors into (key path, 'what is wrong; what to do') pairs."""
     out = []
     for e in err.errors():
@@ -237,7 +241,9 @@ def load_profile(path: str | Path) -> LoadedProfile:
     if problems:
         raise _profile_error(loaded, problems)
     if loaded.profile.schema_ != SCHEMA:
-        raise _profile_error(loaded, [(("schema",), f"unsupported schema {loaded.profile.schema_!r}; use {SCHEMA!r}")])
+        raise _profile_error(
+            loaded, [(("schema",), f"unsupported schema {loaded.profile.schema_!r}; use {SCHEMA!r}")]
+        )
     return loaded
 
 
@@ -296,8 +302,13 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
             resolved["devices"][role] = (spec, settings_for(spec, entry.settings, (*key, "settings")))
             continue
         if role not in roles:
-            problems.append((key, f"job '{job.name}' uses no device '{role}'; its devices are: "
-                                  f"{', '.join(roles) or '(none)'}"))
+            problems.append(
+                (
+                    key,
+                    f"job '{job.name}' uses no device '{role}'; its devices are: "
+                    f"{', '.join(roles) or '(none)'}",
+                )
+            )
             continue
         try:
             spec = registry.get("device", entry.plugin, kind=roles[role].kind)
@@ -307,21 +318,39 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
             continue
         settings = settings_for(spec, entry.settings, (*key, "settings"))
         if entry.mount.parent not in ("world", "base") and not entry.mount.parent.endswith(".flange"):
-            problems.append(((*key, "mount", "parent"), f"unknown frame '{entry.mount.parent}'; use 'world' "
-                                                        "or '<device role>.flange'"))
-        elif entry.mount.parent.endswith(".flange") and entry.mount.parent[: -len(".flange")] not in p.devices:
-            problems.append(((*key, "mount", "parent"), f"'{entry.mount.parent}' names no device of this profile"))
+            problems.append(
+                (
+                    (*key, "mount", "parent"),
+                    f"unknown frame '{entry.mount.parent}'; use 'world' or '<device role>.flange'",
+                )
+            )
+        elif (
+            entry.mount.parent.endswith(".flange") and entry.mount.parent[: -len(".flange")] not in p.devices
+        ):
+            problems.append(
+                ((*key, "mount", "parent"), f"'{entry.mount.parent}' names no device of this profile")
+            )
         resolved["devices"][role] = (spec, settings)
     for role, r in roles.items():
         if role not in p.devices and not r.optional:
-            problems.append((("devices", role), f"job '{job.name}' needs a {r.kind} as device '{role}' "
-                                                f"({r.summary}); add [devices.{role}] with a plugin"))
+            problems.append(
+                (
+                    ("devices", role),
+                    f"job '{job.name}' needs a {r.kind} as device '{role}' "
+                    f"({r.summary}); add [devices.{role}] with a plugin",
+                )
+            )
 
     stage_roles = {r.role: r for r in job.stages}
     for role in p.stages:
         if role not in stage_roles:
-            problems.append((("stages", role), f"job '{job.name}' has no stage '{role}'; its stages are: "
-                                               f"{', '.join(stage_roles) or '(none)'}"))
+            problems.append(
+                (
+                    ("stages", role),
+                    f"job '{job.name}' has no stage '{role}'; its stages are: "
+                    f"{', '.join(stage_roles) or '(none)'}",
+                )
+            )
     for role, r in stage_roles.items():
         entry = p.stages.get(role)
         name = (entry.plugin if entry and entry.plugin else None) or r.default
@@ -332,7 +361,10 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
         except WeldcellError as e:
             problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
             continue
-        resolved["stages"][role] = (spec, settings_for(spec, entry.settings if entry else {}, (*key, "settings")))
+        resolved["stages"][role] = (
+            spec,
+            settings_for(spec, entry.settings if entry else {}, (*key, "settings")),
+        )
 
     resolved["exporter_settings"] = {}
     for i, name in enumerate(p.output.exporters):
@@ -341,19 +373,28 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
             spec.check_available(_dist(registry, "exporter", name))
             resolved["exporters"].append(spec)
         except WeldcellError as e:
-            problems.append((("output", "exporters", str(i)), f"{e.message}; {e.fix}" if e.fix else e.message))
+            problems.append(
+                (("output", "exporters", str(i)), f"{e.message}; {e.fix}" if e.fix else e.message)
+            )
             continue
         resolved["exporter_settings"][name] = settings_for(
-            spec, p.output.exporter_settings.get(name, {}), ("output", "exporter_settings", name))
+            spec, p.output.exporter_settings.get(name, {}), ("output", "exporter_settings", name)
+        )
     for name in p.output.exporter_settings:
         if name not in p.output.exporters:
-            problems.append((("output", "exporter_settings", name), f"'{name}' is not in output.exporters; add it "
-                                                                    "there or remove these settings"))
+            problems.append(
+                (
+                    ("output", "exporter_settings", name),
+                    f"'{name}' is not in output.exporters; add it there or remove these settings",
+                )
+            )
 
     for name, rel in p.calibration.items():
         f = (loaded.source_of(("calibration", name)).parent / rel).resolve()
         if not f.is_file():
-            problems.append((("calibration", name), f"file not found: {f}; run `weldcell calibrate` or fix the path"))
+            problems.append(
+                (("calibration", name), f"file not found: {f}; run `weldcell calibrate` or fix the path")
+            )
 
     if extra_checks is not None:
         problems.extend(extra_checks(loaded))

@@ -26,7 +26,12 @@ UNITS: dict[str, dict[str, float]] = {
     "speed": {"m/s": 1.0, "mm/s": 1e-3, "m/min": 1 / 60.0, "mm/min": 1e-3 / 60.0},
     "angular_speed": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
     "acceleration": {"m/s^2": 1.0, "mm/s^2": 1e-3, "m/s2": 1.0, "mm/s2": 1e-3},
-    "angular_acceleration": {"rad/s^2": 1.0, "deg/s^2": math.pi / 180.0, "rad/s2": 1.0, "deg/s2": math.pi / 180.0},
+    "angular_acceleration": {
+        "rad/s^2": 1.0,
+        "deg/s^2": math.pi / 180.0,
+        "rad/s2": 1.0,
+        "deg/s2": math.pi / 180.0,
+    },
     "frequency": {"Hz": 1.0, "kHz": 1e3},
 }
 SI = {

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from weldcell.sdk.artifacts import read_json, write_json
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_pose7, T_to_pose7
@@ -84,23 +83,38 @@ class WeldPath:
             data = read_json(data)
         if not isinstance(data, dict) or data.get("schema") != SCHEMA:
             got = data.get("schema") if isinstance(data, dict) else type(data).__name__
-            raise DataError(f"{where}: schema is {got!r}, expected {SCHEMA!r}",
-                            "pass a file written by `weldcell seam` or a scan-and-plan run")
+            raise DataError(
+                f"{where}: schema is {got!r}, expected {SCHEMA!r}",
+                "pass a file written by `weldcell seam` or a scan-and-plan run",
+            )
         if data.get("units", "m") != "m":
-            raise DataError(f"{where}: units {data.get('units')!r}; weld paths are stored in metres",
-                            "convert the file to metres")
+            raise DataError(
+                f"{where}: units {data.get('units')!r}; weld paths are stored in metres",
+                "convert the file to metres",
+            )
         seams = []
         for i, s in enumerate(data.get("seams", [])):
             try:
                 pts = np.asarray(s["points"], dtype=float).reshape(-1, 3)
                 poses7 = np.asarray(s["poses"], dtype=float).reshape(-1, 7)
             except (KeyError, ValueError) as e:
-                raise DataError(f"{where}: seam {i} is malformed ({e})",
-                                "each seam needs 'points' [[x,y,z],...] and 'poses' [[x,y,z,qx,qy,qz,qw],...]") from None
+                raise DataError(
+                    f"{where}: seam {i} is malformed ({e})",
+                    "each seam needs 'points' [[x,y,z],...] and 'poses' [[x,y,z,qx,qy,qz,qw],...]",
+                ) from None
             if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(poses7))):
                 raise DataError(f"{where}: seam {i} has NaN or infinite values", "regenerate the path")
-            extra = {k: v for k, v in s.items() if k not in ("id", "joint", "closed", "length", "points", "poses")}
-            seams.append(SeamPath(str(s.get("id", f"s{i}")), str(s.get("joint", "unknown")), pts,
-                                  np.stack([T_from_pose7(p) for p in poses7]) if len(poses7) else np.zeros((0, 4, 4)),
-                                  bool(s.get("closed", False)), extra))
+            extra = {
+                k: v for k, v in s.items() if k not in ("id", "joint", "closed", "length", "points", "poses")
+            }
+            seams.append(
+                SeamPath(
+                    str(s.get("id", f"s{i}")),
+                    str(s.get("joint", "unknown")),
+                    pts,
+                    np.stack([T_from_pose7(p) for p in poses7]) if len(poses7) else np.zeros((0, 4, 4)),
+                    bool(s.get("closed", False)),
+                    extra,
+                )
+            )
         return cls(seams, frame=str(data.get("frame", "base")), metrics=dict(data.get("metrics", {})))

@@ -20,9 +20,15 @@ import time
 
 import numpy as np
 import pytest
-
-from weldcell.hal.interfaces import DepthCamera, DisplacementSensor, GestureSensor, Gnss, Imu
-from weldcell.hal.interfaces import LaserProjector, TactileCamera
+from weldcell.hal.interfaces import (
+    DepthCamera,
+    DisplacementSensor,
+    GestureSensor,
+    Gnss,
+    Imu,
+    LaserProjector,
+    TactileCamera,
+)
 from weldcell.hal.lifecycle import Device, State
 from weldcell.hal.robot import Robot
 from weldcell.sdk.errors import DeviceError, SafetyError
@@ -47,7 +53,9 @@ class DeviceConformance:
         raise NotImplementedError
 
     def test_is_the_right_interface(self, device):
-        assert isinstance(device, self.interface), f"{type(device).__name__} must subclass {self.interface.__name__}"
+        assert isinstance(device, self.interface), (
+            f"{type(device).__name__} must subclass {self.interface.__name__}"
+        )
         assert device.kind == self.interface.kind
 
     def test_lifecycle_order(self, device):
@@ -183,7 +191,9 @@ class DepthCameraConformance(DeviceConformance):
             assert f.depth.shape == (k.height, k.width)
             assert f.depth.dtype in (np.float32, np.float64)
             valid = f.depth[f.depth > 0]
-            assert valid.size > 0 and np.all(np.isfinite(valid)) and valid.max() < 50.0, "depth must be in metres"
+            assert valid.size > 0 and np.all(np.isfinite(valid)) and valid.max() < 50.0, (
+                "depth must be in metres"
+            )
             cloud = f.to_cloud()
             assert len(cloud) == valid.size and cloud.frame == f.frame
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 
 import pytest
-
 from weldcell.sdk.plugins import PluginManager, set_plugin_manager
 
 

@@ -16,5 +16,7 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 def shared_data() -> Path:
     """``../shared/data`` beside the repository; tests that need it skip with the reason when it is absent."""
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"recorded data not found at {SHARED_DATA} (clone the repo beside shared/ to run this test)")
+        pytest.skip(
+            f"recorded data not found at {SHARED_DATA} (clone the repo beside shared/ to run this test)"
+        )
     return SHARED_DATA

@@ -23,7 +23,11 @@ def test_example_plugin_tests_pass():
     path = os.pathsep.join(p for p in (str(EXAMPLE), os.environ.get("PYTHONPATH", "")) if p)
     proc = subprocess.run(
         [sys.executable, "-m", "pytest", str(EXAMPLE / "tests"), "-q", "-p", "no:cacheprovider"],
-        cwd=ROOT, env=_env(PYTHONPATH=path), capture_output=True, text=True, timeout=300,
+        cwd=ROOT,
+        env=_env(PYTHONPATH=path),
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert proc.returncode == 0, f"example plugin tests failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-2000:]}"
     assert " passed" in proc.stdout and "failed" not in proc.stdout
@@ -33,8 +37,10 @@ def test_profile_reference_is_up_to_date():
     """docs/profile-reference.md matches the settings models in the code."""
     proc = subprocess.run(
         [sys.executable, str(ROOT / "docs" / "gen_profile_reference.py"), "--check"],
-        cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=300,
+        cwd=ROOT,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
-    assert proc.returncode == 0, (
-        "stale; run `python docs/gen_profile_reference.py`\n" + proc.stderr[-3000:]
-    )
+    assert proc.returncode == 0, "stale; run `python docs/gen_profile_reference.py`\n" + proc.stderr[-3000:]

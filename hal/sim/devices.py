@@ -9,7 +9,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from weldcell.hal.interfaces import DepthCamera, DisplacementSensor, GestureSensor, Gnss, Imu, LaserProjector
 from weldcell.hal.readings import DepthFrame, Displacement, GnssFix, HandsFrame, ImuReading, Intrinsics  # noqa: F401
 from weldcell.hal.robot import Robot, RobotMotionSettings
@@ -25,10 +24,18 @@ from weldcell.sdk.geometry import invert, transform_points
 class SimRobot(Robot):
     """A kinematic robot: commands move its joints instantly, simulated time advances by the motion time."""
 
-    def __init__(self, model: RobotModel, world: SimWorld, T_world_base: np.ndarray | None = None,
-                 name: str = "robot", gate: SafetyGate | None = None, motion: RobotMotionSettings | None = None,
-                 dry_run: bool = False, q_start: np.ndarray | None = None,
-                 flange: FlangeGeometry | None = None) -> None:
+    def __init__(
+        self,
+        model: RobotModel,
+        world: SimWorld,
+        T_world_base: np.ndarray | None = None,
+        name: str = "robot",
+        gate: SafetyGate | None = None,
+        motion: RobotMotionSettings | None = None,
+        dry_run: bool = False,
+        q_start: np.ndarray | None = None,
+        flange: FlangeGeometry | None = None,
+    ) -> None:
         super().__init__(name, gate or SafetyGate(model=model), motion, dry_run)
         self.model = model
         self.world = world
@@ -98,9 +105,18 @@ class SimRobot(Robot):
 class SimDepthCamera(DepthCamera):
     """A ray-cast depth camera with a real camera's resolution, range and noise (see camera presets)."""
 
-    def __init__(self, world: SimWorld, preset: str, T_parent_camera: np.ndarray, parent: str = "world",
-                 name: str = "camera", noise: bool = True, decimation: int = 1, seed: int = 0,
-                 frame_time: float = 1 / 30) -> None:
+    def __init__(
+        self,
+        world: SimWorld,
+        preset: str,
+        T_parent_camera: np.ndarray,
+        parent: str = "world",
+        name: str = "camera",
+        noise: bool = True,
+        decimation: int = 1,
+        seed: int = 0,
+        frame_time: float = 1 / 30,
+    ) -> None:
         super().__init__(name, frame=name)
         self.world = world
         self.preset = preset
@@ -152,15 +168,27 @@ class SimDepthCamera(DepthCamera):
         self._pose_attached()
         img = self.camera.render(self.T_world_camera, rng=self.rng, noise=self.noise)
         self.world.clock.advance(self.frame_time)
-        return DepthFrame(stamp=time.time(), depth=img.depth, intrinsics=self._intrinsics(), frame=self.name,
-                          meta={"sim_time": self.world.clock.t, "T_world_camera": self.T_world_camera})
+        return DepthFrame(
+            stamp=time.time(),
+            depth=img.depth,
+            intrinsics=self._intrinsics(),
+            frame=self.name,
+            meta={"sim_time": self.world.clock.t, "T_world_camera": self.T_world_camera},
+        )
 
 
 class SimGestureSensor(GestureSensor):
     """A Leap-like hand tracker playing a scripted hand motion (see :mod:`weldcell.hal.sim.hands`)."""
 
-    def __init__(self, world: SimWorld, script: list[dict], rate: float = 60.0, name: str = "gesture",
-                 seed: int = 0, disconnect_after: int | None = None) -> None:
+    def __init__(
+        self,
+        world: SimWorld,
+        script: list[dict],
+        rate: float = 60.0,
+        name: str = "gesture",
+        seed: int = 0,
+        disconnect_after: int | None = None,
+    ) -> None:
         super().__init__(name, frame=name)
         self.world = world
         self.steps = script
@@ -198,9 +226,17 @@ class SimGestureSensor(GestureSensor):
 class SimDisplacementSensor(DisplacementSensor):
     """A 1-D laser displacement sensor ray-cast against the world (range and noise from settings)."""
 
-    def __init__(self, world: SimWorld, T_parent_sensor: np.ndarray, parent: str = "world",
-                 name: str = "laser", min_range: float = 0.03, max_range: float = 0.3, noise: float = 2e-6,
-                 seed: int = 0) -> None:
+    def __init__(
+        self,
+        world: SimWorld,
+        T_parent_sensor: np.ndarray,
+        parent: str = "world",
+        name: str = "laser",
+        min_range: float = 0.03,
+        max_range: float = 0.3,
+        noise: float = 2e-6,
+        seed: int = 0,
+    ) -> None:
         super().__init__(name, frame=name)
         self.world = world
         self.T_parent_sensor = np.asarray(T_parent_sensor, dtype=float)
@@ -242,10 +278,18 @@ class SimProjector(LaserProjector):
 
 
 class SimImu(Imu):
-    """An IMU rigidly attached to a frame of the world: gravity, rotation rate from frame differences, noise."""
+    """An IMU rigidly attached to a world frame: gravity, rotation rate from frame differences, noise."""
 
-    def __init__(self, world: SimWorld, parent: str = "world", T_parent_imu: np.ndarray | None = None,
-                 name: str = "imu", accel_noise: float = 0.02, gyro_noise: float = 0.002, seed: int = 0) -> None:
+    def __init__(
+        self,
+        world: SimWorld,
+        parent: str = "world",
+        T_parent_imu: np.ndarray | None = None,
+        name: str = "imu",
+        accel_noise: float = 0.02,
+        gyro_noise: float = 0.002,
+        seed: int = 0,
+    ) -> None:
         super().__init__(name, frame=name)
         self.world = world
         self.parent = parent
@@ -265,18 +309,28 @@ class SimImu(Imu):
             gyro = Rotation.from_matrix(dR).as_rotvec() / (t - self._last[0])
         self._last = (t, T)
         accel = T[:3, :3].T @ np.array([0.0, 0.0, 9.80665])
-        return ImuReading(time.time(), accel + self.rng.normal(0, self.accel_noise, 3),
-                          gyro + self.rng.normal(0, self.gyro_noise, 3),
-                          mag=T[:3, :3].T @ np.array([0.0, 22.0, -42.0]),
-                          orientation=Rotation.from_matrix(T[:3, :3]).as_quat(), frame=self.name)
+        return ImuReading(
+            time.time(),
+            accel + self.rng.normal(0, self.accel_noise, 3),
+            gyro + self.rng.normal(0, self.gyro_noise, 3),
+            mag=T[:3, :3].T @ np.array([0.0, 22.0, -42.0]),
+            orientation=Rotation.from_matrix(T[:3, :3]).as_quat(),
+            frame=self.name,
+        )
 
 
 class SimGnss(Gnss):
     """A GNSS receiver at a frame of the world; the world origin is at ``origin`` (lat, lon, alt)."""
 
-    def __init__(self, world: SimWorld, parent: str = "world", name: str = "gnss",
-                 origin: tuple[float, float, float] = (22.5966, 113.9976, 30.0), sigma: float = 0.02,
-                 seed: int = 0) -> None:
+    def __init__(
+        self,
+        world: SimWorld,
+        parent: str = "world",
+        name: str = "gnss",
+        origin: tuple[float, float, float] = (22.5966, 113.9976, 30.0),
+        sigma: float = 0.02,
+        seed: int = 0,
+    ) -> None:
         super().__init__(name, frame="enu")
         self.world = world
         self.parent = parent
@@ -291,8 +345,14 @@ class SimGnss(Gnss):
         r = 6378137.0
         lat = lat0 + np.degrees(enu[1] / r)
         lon = lon0 + np.degrees(enu[0] / (r * np.cos(np.radians(lat0))))
-        return GnssFix(time.time(), float(lat), float(lon), float(alt0 + enu[2]), enu=enu,
-                       covariance=np.eye(3) * self.sigma**2)
+        return GnssFix(
+            time.time(),
+            float(lat),
+            float(lon),
+            float(alt0 + enu[2]),
+            enu=enu,
+            covariance=np.eye(3) * self.sigma**2,
+        )
 
 
 def T_world_to_base(world: SimWorld, robot_role: str) -> np.ndarray:

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-
 from weldcell.hal.readings import Hand, HandsFrame, InteractionBox
 from weldcell.sdk.errors import DataError
 
@@ -88,14 +87,20 @@ def load_script(spec: str | list[dict]) -> list[dict]:
     elif Path(spec).suffix == ".json" and Path(spec).is_file():
         steps = json.loads(Path(spec).read_text())
     else:
-        raise DataError(f"unknown hand script {spec!r}",
-                        f"use one of {', '.join(BUILTIN_SCRIPTS)} or a .json file of steps")
+        raise DataError(
+            f"unknown hand script {spec!r}",
+            f"use one of {', '.join(BUILTIN_SCRIPTS)} or a .json file of steps",
+        )
     for i, st in enumerate(steps):
         if not isinstance(st, dict) or float(st.get("seconds", 0)) <= 0:
-            raise DataError(f"hand script step {i} needs a positive 'seconds'", "e.g. {\"ok\": true, \"seconds\": 0.3}")
+            raise DataError(
+                f"hand script step {i} needs a positive 'seconds'", 'e.g. {"ok": true, "seconds": 0.3}'
+            )
         if "left" in st and st["left"] not in REGION_OFFSET:
-            raise DataError(f"hand script step {i}: unknown region {st['left']!r}",
-                            f"use one of {', '.join(REGION_OFFSET)}")
+            raise DataError(
+                f"hand script step {i}: unknown region {st['left']!r}",
+                f"use one of {', '.join(REGION_OFFSET)}",
+            )
     return steps
 
 
@@ -124,8 +129,12 @@ class HandScript:
         if st.get("none"):
             return _Pose(None, np.zeros(3), False, False)
         region = st.get("left", "home")
-        return _Pose(region, np.asarray(st.get("rpy", [0, 0, 0]), dtype=float), bool(st.get("ok")),
-                     bool(st.get("fist")))
+        return _Pose(
+            region,
+            np.asarray(st.get("rpy", [0, 0, 0]), dtype=float),
+            bool(st.get("ok")),
+            bool(st.get("fist")),
+        )
 
     def next_frame(self, stamp: float) -> HandsFrame:
         t = self.index / self.rate
@@ -162,6 +171,13 @@ def _hand(side: str, palm: np.ndarray, rot: Rotation, ok: bool, fist: bool) -> H
         offsets = {f: [o[0] * 0.5, -0.02, -0.03] for f, o in offsets.items()}
         extended = dict.fromkeys(FINGERS, False)
     tips = {f: palm + rot.apply(o) for f, o in offsets.items()}
-    return Hand(side=side, palm_position=palm, palm_normal=normal, direction=direction,
-                grab_strength=1.0 if fist else 0.0, pinch_strength=1.0 if ok else 0.0,
-                fingertips=tips, extended=extended)
+    return Hand(
+        side=side,
+        palm_position=palm,
+        palm_normal=normal,
+        direction=direction,
+        grab_strength=1.0 if fist else 0.0,
+        pinch_strength=1.0 if ok else 0.0,
+        fingertips=tips,
+        extended=extended,
+    )

@@ -13,7 +13,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-
 from weldcell.hal.sim.workpieces import Workpiece, make_workpiece
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rpy
@@ -78,8 +77,10 @@ class SimWorld:
             else:
                 return np.eye(4)
         if frame not in self._frames:
-            raise DataError(f"the simulated cell has no frame '{frame}'; frames: {', '.join(self._frames)}",
-                            "mount the device on 'world' or on '<robot role>.flange'")
+            raise DataError(
+                f"the simulated cell has no frame '{frame}'; frames: {', '.join(self._frames)}",
+                "mount the device on 'world' or on '<robot role>.flange'",
+            )
         return self._frames[frame]()
 
     # -- geometry --------------------------------------------------------------------------------
@@ -88,8 +89,10 @@ class SimWorld:
         V = np.asarray(vertices, dtype=float).reshape(-1, 3)
         F = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         if len(F) == 0 or F.min() < 0 or F.max() >= len(V) or not np.all(np.isfinite(V)):
-            raise DataError(f"attached mesh '{name}' is empty or has bad indices/vertices",
-                            "give finite vertices and triangles indexing them")
+            raise DataError(
+                f"attached mesh '{name}' is empty or has bad indices/vertices",
+                "give finite vertices and triangles indexing them",
+            )
         self.attachments[name] = Attachment(frame, V, F)
 
     def detach(self, name: str) -> None:

@@ -31,7 +31,14 @@ def _probe(settings) -> str:
 def weldcell_register_devices(register):
     from .settings import ArucoCameraSettings
 
-    register(DeviceSpec(name="tactile.aruco-camera", kind="tactile_camera",
-                        summary="SRM in-finger camera watching the ArUco tag (OpenCV VideoCapture)",
-                        settings=ArucoCameraSettings, factory=_factory, requires={"cv2": "vision"},
-                        probe=_probe))
+    register(
+        DeviceSpec(
+            name="tactile.aruco-camera",
+            kind="tactile_camera",
+            summary="SRM in-finger camera watching the ArUco tag (OpenCV VideoCapture)",
+            settings=ArucoCameraSettings,
+            factory=_factory,
+            requires={"cv2": "vision"},
+            probe=_probe,
+        )
+    )

@@ -21,16 +21,24 @@ from weldcell.sdk.errors import DataError, DeviceError
 from .intrinsics_io import read_opencv_intrinsics, scaled
 from .settings import ArucoCameraSettings
 
-BACKENDS = {"any": "CAP_ANY", "v4l2": "CAP_V4L2", "dshow": "CAP_DSHOW", "msmf": "CAP_MSMF",
-            "avfoundation": "CAP_AVFOUNDATION", "gstreamer": "CAP_GSTREAMER", "ffmpeg": "CAP_FFMPEG",
-            "images": "CAP_IMAGES"}
+BACKENDS = {
+    "any": "CAP_ANY",
+    "v4l2": "CAP_V4L2",
+    "dshow": "CAP_DSHOW",
+    "msmf": "CAP_MSMF",
+    "avfoundation": "CAP_AVFOUNDATION",
+    "gstreamer": "CAP_GSTREAMER",
+    "ffmpeg": "CAP_FFMPEG",
+    "images": "CAP_IMAGES",
+}
 
 
 def open_capture(settings: ArucoCameraSettings) -> Any:
     """A ``cv2.VideoCapture`` for the settings' source (index, file, image pattern or URL)."""
     if settings.backend not in BACKENDS:
-        raise DeviceError(f"unknown VideoCapture backend {settings.backend!r}",
-                          f"use one of {', '.join(BACKENDS)}")
+        raise DeviceError(
+            f"unknown VideoCapture backend {settings.backend!r}", f"use one of {', '.join(BACKENDS)}"
+        )
     api = getattr(cv2, BACKENDS[settings.backend], cv2.CAP_ANY)
     src: int | str = int(settings.source) if settings.source.strip().isdigit() else settings.source
     cap = cv2.VideoCapture(src, api)
@@ -47,8 +55,13 @@ def open_capture(settings: ArucoCameraSettings) -> Any:
 class ArucoCamera(TactileCamera):
     """The finger camera: ``capture()`` returns the next BGR frame (OpenCV order) with its intrinsics."""
 
-    def __init__(self, settings: ArucoCameraSettings, name: str = "finger-camera", frame: str | None = None,
-                 capture_factory: Callable[[ArucoCameraSettings], Any] = open_capture) -> None:
+    def __init__(
+        self,
+        settings: ArucoCameraSettings,
+        name: str = "finger-camera",
+        frame: str | None = None,
+        capture_factory: Callable[[ArucoCameraSettings], Any] = open_capture,
+    ) -> None:
         super().__init__(name, frame)
         self.settings = settings
         self._factory = capture_factory
@@ -74,15 +87,20 @@ class ArucoCamera(TactileCamera):
         try:
             self._cap = fut.result(timeout=s.open_timeout)
         except cf.TimeoutError:
-            raise DeviceError(f"camera {s.source!r} did not open within {s.open_timeout:.1f} s",
-                              "check the index / URL; is another program holding the camera?") from None
+            raise DeviceError(
+                f"camera {s.source!r} did not open within {s.open_timeout:.1f} s",
+                "check the index / URL; is another program holding the camera?",
+            ) from None
         if not self._cap.isOpened():
-            raise DeviceError(f"cannot open camera source {s.source!r}",
-                              "check the index, file path, pattern (e.g. img_%02d.jpg) or stream URL")
+            raise DeviceError(
+                f"cannot open camera source {s.source!r}",
+                "check the index, file path, pattern (e.g. img_%02d.jpg) or stream URL",
+            )
         w = int(self._cap.get(cv2.CAP_PROP_FRAME_WIDTH) or 0)
         h = int(self._cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0)
-        self._intr = scaled(self._calib, w,
-                            h) if (self._calib is not None and w > 0 and h > 0) else self._calib
+        self._intr = (
+            scaled(self._calib, w, h) if (self._calib is not None and w > 0 and h > 0) else self._calib
+        )
 
     def on_close(self) -> None:
         cap, pool = self._cap, self._pool

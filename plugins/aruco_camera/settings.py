@@ -22,17 +22,24 @@ class IntrinsicsBlock(Settings):
 class ArucoCameraSettings(Settings):
     """``tactile.aruco-camera``: the SRM finger's camera through ``cv2.VideoCapture``."""
 
-    source: str = Field("0", description="camera index ('0'), a video file, an image sequence pattern "
-                        "('frames/img_%02d.jpg') or a stream URL")
-    backend: str = Field("any",
-                         description="VideoCapture API: any, v4l2, dshow, msmf, avfoundation, gstreamer, "
-                         "ffmpeg, images")
+    source: str = Field(
+        "0",
+        description="camera index ('0'), a video file, an image sequence pattern "
+        "('frames/img_%02d.jpg') or a stream URL",
+    )
+    backend: str = Field(
+        "any", description="VideoCapture API: any, v4l2, dshow, msmf, avfoundation, gstreamer, ffmpeg, images"
+    )
     width: int | None = Field(None, gt=0, description="requested frame width [px] (live cameras)")
     height: int | None = Field(None, gt=0, description="requested frame height [px] (live cameras)")
     fps: float | None = Field(None, gt=0, description="requested frame rate [Hz] (live cameras)")
-    intrinsics_file: str = Field("", description="OpenCV calibration file (YAML/XML with camera_matrix, "
-                                 "distortion_coefficients, image_width, image_height)")
-    intrinsics: IntrinsicsBlock | None = Field(None,
-                                               description="intrinsics given inline (instead of a file)")
+    intrinsics_file: str = Field(
+        "",
+        description="OpenCV calibration file (YAML/XML with camera_matrix, "
+        "distortion_coefficients, image_width, image_height)",
+    )
+    intrinsics: IntrinsicsBlock | None = Field(
+        None, description="intrinsics given inline (instead of a file)"
+    )
     loop: bool = Field(False, description="files: start again at the first frame at the end")
     open_timeout: Duration = Field(5.0, gt=0, description="longest wait for the camera to open [s]")

@@ -30,7 +30,14 @@ def _probe(settings) -> str:
 def weldcell_register_devices(register):
     from .settings import AuboSettings
 
-    register(DeviceSpec(name="robot.aubo", kind="robot",
-                        summary="AUBO i-series (ARCS) through pyaubo-sdk RPC",
-                        settings=AuboSettings, factory=_factory, requires={"pyaubo_sdk": "aubo"},
-                        probe=_probe))
+    register(
+        DeviceSpec(
+            name="robot.aubo",
+            kind="robot",
+            summary="AUBO i-series (ARCS) through pyaubo-sdk RPC",
+            settings=AuboSettings,
+            factory=_factory,
+            requires={"pyaubo_sdk": "aubo"},
+            probe=_probe,
+        )
+    )

@@ -54,8 +54,14 @@ def _enum_name(v: Any) -> str:
 class AuboRobot(Robot):
     """An AUBO arm behind ``pyaubo_sdk.RpcClient``; flange poses in the robot base frame."""
 
-    def __init__(self, settings: AuboSettings, name: str = "aubo", gate: SafetyGate | None = None,
-                 dry_run: bool = False, rpc_factory: Callable[[], Any] | None = None) -> None:
+    def __init__(
+        self,
+        settings: AuboSettings,
+        name: str = "aubo",
+        gate: SafetyGate | None = None,
+        dry_run: bool = False,
+        rpc_factory: Callable[[], Any] | None = None,
+    ) -> None:
         super().__init__(name, gate=gate, motion=settings, dry_run=dry_run)
         self.settings = settings
         self._rpc_factory = rpc_factory or pyaubo_sdk.RpcClient
@@ -71,8 +77,10 @@ class AuboRobot(Robot):
         rpc.setRequestTimeout(int(s.request_timeout * 1000))
         code = rpc.connect(s.host, s.port)
         if not rpc.hasConnected():
-            raise DeviceError(f"cannot connect to the AUBO controller at {s.host}:{s.port} (code {code})",
-                              "check the address, the network and that the controller is booted")
+            raise DeviceError(
+                f"cannot connect to the AUBO controller at {s.host}:{s.port} (code {code})",
+                "check the address, the network and that the controller is booted",
+            )
         password = os.environ.get(s.password_env)
         if password is None:
             log.warning("%s is unset; logging in with the factory default password", s.password_env)
@@ -80,21 +88,26 @@ class AuboRobot(Robot):
         self._rpc = rpc
         code = self._call("login", lambda: rpc.login(s.user, password))
         if code != 0 or not rpc.hasLogined():
-            raise DeviceError(f"AUBO login as {s.user!r} failed (code {code})",
-                              f"check the user and the password in ${s.password_env}")
+            raise DeviceError(
+                f"AUBO login as {s.user!r} failed (code {code})",
+                f"check the user and the password in ${s.password_env}",
+            )
         names = list(self._call("getRobotNames", rpc.getRobotNames))
         if not names:
             raise DeviceError("the AUBO controller reports no robot", "check the controller configuration")
         if s.robot_name and s.robot_name not in names:
-            raise DeviceError(f"no robot {s.robot_name!r} on the controller (it has {names})",
-                              "fix robot_name")
+            raise DeviceError(
+                f"no robot {s.robot_name!r} on the controller (it has {names})", "fix robot_name"
+            )
         self.robot_name = s.robot_name or names[0]
         self._ri = rpc.getRobotInterface(self.robot_name)
         st = self._ri.getRobotState()
         mode = _enum_name(self._call("getRobotModeType", st.getRobotModeType))
         if mode != "Running":
-            raise DeviceError(f"the AUBO arm is '{mode}', not 'Running'",
-                              "power on and release the brakes (AUBOPE / RobotManage.poweron + startup)")
+            raise DeviceError(
+                f"the AUBO arm is '{mode}', not 'Running'",
+                "power on and release the brakes (AUBOPE / RobotManage.poweron + startup)",
+            )
         self._check_safety(st)
         off = self._call("getTcpOffset", self._ri.getRobotConfig().getTcpOffset)
         self.T_flange_ctrltcp = pose_to_T(off)
@@ -122,8 +135,10 @@ class AuboRobot(Robot):
                 if safety in STOP_SAFETY:
                     code = self._ri.getRobotManage().setUnlockProtectiveStop()
                     if code != 0:
-                        raise DeviceError(f"setUnlockProtectiveStop refused (code {code})",
-                                          "clear the stop cause on the teach pendant")
+                        raise DeviceError(
+                            f"setUnlockProtectiveStop refused (code {code})",
+                            "clear the stop cause on the teach pendant",
+                        )
             except DeviceError:
                 raise
             except Exception:
@@ -151,8 +166,13 @@ class AuboRobot(Robot):
     def _check_safety(self, st: Any) -> str:
         safety = _enum_name(self._call("getSafetyModeType", st.getSafetyModeType))
         if safety in FAULT_SAFETY:
-            raise self.fault(f"safety mode {safety}") if self._state is State.ACTIVE else DeviceError(
-                f"the AUBO is in safety mode {safety}", "clear it on the teach pendant, then recover()")
+            raise (
+                self.fault(f"safety mode {safety}")
+                if self._state is State.ACTIVE
+                else DeviceError(
+                    f"the AUBO is in safety mode {safety}", "clear it on the teach pendant, then recover()"
+                )
+            )
         return safety
 
     def _wait(self, what: str) -> None:
@@ -207,8 +227,10 @@ class AuboRobot(Robot):
         for i, T in enumerate(poses):
             r = float(blend) if i < len(poses) - 1 else 0.0
             pose = self._ctrl_pose(T)
-            self._ok(f"moveLine (path point {i})",
-                     self._call("moveLine", lambda p=pose, r=r: mc.moveLine(p, accel, speed, r, 0.0)))
+            self._ok(
+                f"moveLine (path point {i})",
+                self._call("moveLine", lambda p=pose, r=r: mc.moveLine(p, accel, speed, r, 0.0)),
+            )
         self._wait("path")
 
     def _speed_linear(self, twist: np.ndarray, accel: float, duration: float) -> None:
@@ -232,8 +254,9 @@ def make_aubo(settings: AuboSettings, ctx: Any) -> AuboRobot:
     from weldcell.hal.sim.kinematics import get_model
 
     gate = SafetyGate(getattr(ctx, "safety", None), model=get_model(settings.model))
-    return AuboRobot(settings, name=getattr(ctx, "role", "aubo"), gate=gate,
-                     dry_run=bool(getattr(ctx, "dry_run", False)))
+    return AuboRobot(
+        settings, name=getattr(ctx, "role", "aubo"), gate=gate, dry_run=bool(getattr(ctx, "dry_run", False))
+    )
 
 
 def probe_aubo(settings: AuboSettings, timeout: float = 1.0) -> str:
@@ -242,8 +265,10 @@ def probe_aubo(settings: AuboSettings, timeout: float = 1.0) -> str:
         with socket.create_connection((settings.host, settings.port), timeout=timeout):
             pass
     except OSError as e:
-        raise DeviceError(f"AUBO RPC at {settings.host}:{settings.port} does not answer ({e})",
-                          "check the controller address and that ARCS is running") from e
+        raise DeviceError(
+            f"AUBO RPC at {settings.host}:{settings.port} does not answer ({e})",
+            "check the controller address and that ARCS is running",
+        ) from e
     rpc = pyaubo_sdk.RpcClient()
     rpc.setRequestTimeout(int(timeout * 1000))
     try:
@@ -255,8 +280,10 @@ def probe_aubo(settings: AuboSettings, timeout: float = 1.0) -> str:
     except DeviceError:
         raise
     except Exception as e:
-        raise DeviceError(f"AUBO RPC at {settings.host}:{settings.port} did not answer the handshake ({e})",
-                          "check that this is an ARCS controller (SDK >= 0.24)") from e
+        raise DeviceError(
+            f"AUBO RPC at {settings.host}:{settings.port} did not answer the handshake ({e})",
+            "check that this is an ARCS controller (SDK >= 0.24)",
+        ) from e
     finally:
         for fn in ("logout", "disconnect"):
             try:

@@ -13,8 +13,11 @@ class AuboSettings(RobotMotionSettings):
     host: str = Field("192.168.1.10", description="controller address")
     port: int = Field(30004, gt=0, lt=65536, description="ARCS RPC port (JSON-RPC over TCP)")
     user: str = Field("aubo", description="RPC login user")
-    password_env: str = Field("AUBO_PASSWORD", description="name of the environment variable holding the RPC "
-                              "password (unset: the controller's factory default)")
+    password_env: str = Field(
+        "AUBO_PASSWORD",
+        description="name of the environment variable holding the RPC "
+        "password (unset: the controller's factory default)",
+    )
     robot_name: str = Field("", description="robot name on the controller (e.g. 'rob1'); empty: the first")
     model: str = Field("aubo-i5", description="kinematic model for the safety gate (weldcell.hal.sim)")
     request_timeout: Duration = Field(2.0, gt=0, description="timeout of one RPC request [s]")

@@ -10,5 +10,13 @@ from weldcell.sdk.hookspecs import hookimpl
 def weldcell_register_jobs(register) -> None:
     from weldcell.plugins.device_check.job import CheckSettings, run
 
-    register(JobSpec(name="check-devices", kind="job", settings=CheckSettings, run=run, any_devices=True,
-                     summary="open every device of the cell, take one reading from each, report its health"))
+    register(
+        JobSpec(
+            name="check-devices",
+            kind="job",
+            settings=CheckSettings,
+            run=run,
+            any_devices=True,
+            summary="open every device of the cell, take one reading from each, report its health",
+        )
+    )

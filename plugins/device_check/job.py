@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
-
 from weldcell.sdk.errors import DeviceError
 from weldcell.sdk.settings import Settings
 
@@ -59,14 +58,21 @@ def run(ctx) -> dict:
                 for _ in range(s.readings):
                     last = _read(device, s.timeout)
                 h = device.health()
-                report[role] = {"ok": True, "kind": device.kind, "reading": _describe(last),
-                                "stamp": float(getattr(last, "stamp", 0.0)), "frame": getattr(last, "frame", ""),
-                                "state": h.state.value}
+                report[role] = {
+                    "ok": True,
+                    "kind": device.kind,
+                    "reading": _describe(last),
+                    "stamp": float(getattr(last, "stamp", 0.0)),
+                    "frame": getattr(last, "frame", ""),
+                    "state": h.state.value,
+                }
             except DeviceError as e:
                 failed += 1
                 report[role] = {"ok": False, "kind": device.kind, "error": e.message, "fix": e.fix}
         r = report[role]
-        lines.append(f"{role:<12} {r['kind']:<20} " + (f"ok     {r['reading']}" if r["ok"] else f"FAILED {r['error']}"))
+        lines.append(
+            f"{role:<12} {r['kind']:<20} " + (f"ok     {r['reading']}" if r["ok"] else f"FAILED {r['error']}")
+        )
     ctx.write_json("devices.json", report)
     ctx.write_text("summary.txt", "\n".join(lines) + "\n")
     ctx.figures["devices"] = report

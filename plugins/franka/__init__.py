@@ -30,7 +30,14 @@ def _probe(settings) -> str:
 def weldcell_register_devices(register):
     from .settings import FrankaSettings
 
-    register(DeviceSpec(name="robot.franka", kind="robot",
-                        summary="Franka Emika Panda / FR3 through franky (FCI)",
-                        settings=FrankaSettings, factory=_factory, requires={"franky": "franka"},
-                        probe=_probe))
+    register(
+        DeviceSpec(
+            name="robot.franka",
+            kind="robot",
+            summary="Franka Emika Panda / FR3 through franky (FCI)",
+            settings=FrankaSettings,
+            factory=_factory,
+            requires={"franky": "franka"},
+            probe=_probe,
+        )
+    )

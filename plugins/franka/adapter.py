@@ -31,9 +31,20 @@ from .settings import FrankaSettings
 
 FCI_PORT = 1337  # libfranka's command port on the control unit
 
-_FRANKY_ERRORS = tuple(getattr(franky, n) for n in (
-    "ControlException", "CommandException", "NetworkException", "ProtocolException", "RealtimeException",
-    "InvalidOperationException", "IncompatibleVersionException", "Exception") if hasattr(franky, n))
+_FRANKY_ERRORS = tuple(
+    getattr(franky, n)
+    for n in (
+        "ControlException",
+        "CommandException",
+        "NetworkException",
+        "ProtocolException",
+        "RealtimeException",
+        "InvalidOperationException",
+        "IncompatibleVersionException",
+        "Exception",
+    )
+    if hasattr(franky, n)
+)
 
 
 def _factor(value: float, limit: float) -> float:
@@ -43,8 +54,14 @@ def _factor(value: float, limit: float) -> float:
 class FrankaRobot(Robot):
     """A Franka arm behind ``franky.Robot``; flange poses in the robot base frame O."""
 
-    def __init__(self, settings: FrankaSettings, name: str = "franka", gate: SafetyGate | None = None,
-                 dry_run: bool = False, robot_factory: Callable[..., Any] | None = None) -> None:
+    def __init__(
+        self,
+        settings: FrankaSettings,
+        name: str = "franka",
+        gate: SafetyGate | None = None,
+        dry_run: bool = False,
+        robot_factory: Callable[..., Any] | None = None,
+    ) -> None:
         super().__init__(name, gate=gate, motion=settings, dry_run=dry_run)
         self.settings = settings
         self._factory = robot_factory or franky.Robot
@@ -56,16 +73,23 @@ class FrankaRobot(Robot):
         if self._robot is None:
             s = self.settings
             try:
-                self._robot = self._factory(s.host, relative_dynamics_factor=s.relative_dynamics_factor,
-                                            default_torque_threshold=s.torque_threshold,
-                                            default_force_threshold=s.force_threshold)
+                self._robot = self._factory(
+                    s.host,
+                    relative_dynamics_factor=s.relative_dynamics_factor,
+                    default_torque_threshold=s.torque_threshold,
+                    default_force_threshold=s.force_threshold,
+                )
             except _FRANKY_ERRORS as e:
-                raise DeviceError(f"cannot connect to the Franka at {s.host}: {e}",
-                                  "unlock the joints and activate FCI in Desk; check the host address") from e
+                raise DeviceError(
+                    f"cannot connect to the Franka at {s.host}: {e}",
+                    "unlock the joints and activate FCI in Desk; check the host address",
+                ) from e
         st = self._robot.state
         if st.robot_mode == franky.RobotMode.Reflex or self._robot.has_errors:
-            raise DeviceError(f"the Franka is in a reflex/error state ({st.current_errors})",
-                              "call recover() (runs recover_from_errors) after clearing the cause")
+            raise DeviceError(
+                f"the Franka is in a reflex/error state ({st.current_errors})",
+                "call recover() (runs recover_from_errors) after clearing the cause",
+            )
         self.F_T_EE = np.asarray(st.F_T_EE.matrix, dtype=float)
 
     def on_deactivate(self) -> None:
@@ -87,8 +111,10 @@ class FrankaRobot(Robot):
             self._robot = None  # connection lost: reconnect on configure()
             raise DeviceError(f"recover_from_errors failed: {e}", "check the robot and the FCI link") from e
         if not ok:
-            raise DeviceError("the Franka refused automatic error recovery",
-                              "release the user stop / fix the reflex cause, then call recover() again")
+            raise DeviceError(
+                "the Franka refused automatic error recovery",
+                "release the user stop / fix the reflex cause, then call recover() again",
+            )
 
     # -- helpers ---------------------------------------------------------------------------------
     def _guard(self, what: str, fn: Callable[[], Any]) -> Any:
@@ -131,20 +157,27 @@ class FrankaRobot(Robot):
         O_T_EE = np.asarray(st.O_T_EE.matrix, dtype=float)
         self.F_T_EE = np.asarray(st.F_T_EE.matrix, dtype=float)
         T = O_T_EE @ invert(self.F_T_EE)
-        extra = {"qd": np.asarray(st.dq, dtype=float).ravel(), "moving": mode == franky.RobotMode.Move,
-                 "protective_stop": mode == franky.RobotMode.UserStopped}
+        extra = {
+            "qd": np.asarray(st.dq, dtype=float).ravel(),
+            "moving": mode == franky.RobotMode.Move,
+            "protective_stop": mode == franky.RobotMode.UserStopped,
+        }
         return np.asarray(st.q, dtype=float).ravel(), T, extra
 
     def _move_linear(self, T_base_flange: np.ndarray, speed: float, accel: float) -> None:
-        m = franky.CartesianMotion(self._ee(T_base_flange), franky.ReferenceType.Absolute, self._dyn(speed,
-                                                                                                     accel))
+        m = franky.CartesianMotion(
+            self._ee(T_base_flange), franky.ReferenceType.Absolute, self._dyn(speed, accel)
+        )
         self._run(m, "linear move")
 
     def _move_joint(self, q: np.ndarray, speed: float, accel: float) -> None:
         v = _factor(speed, self.settings.max_joint_speed)
         a = _factor(accel, self.settings.max_joint_accel)
-        m = franky.JointMotion(franky.JointState(np.asarray(q, dtype=float)), franky.ReferenceType.Absolute,
-                               franky.RelativeDynamicsFactor(v, a, min(v, a)))
+        m = franky.JointMotion(
+            franky.JointState(np.asarray(q, dtype=float)),
+            franky.ReferenceType.Absolute,
+            franky.RelativeDynamicsFactor(v, a, min(v, a)),
+        )
         self._run(m, "joint move")
 
     def _follow_path(self, poses: np.ndarray, speed: float, accel: float, blend: float) -> None:
@@ -156,13 +189,15 @@ class FrankaRobot(Robot):
         tw = np.asarray(twist, dtype=float).reshape(6)
         st = self._guard("state read", lambda: self._robot.state)
         O_T_EE = np.asarray(st.O_T_EE.matrix, dtype=float)
-        r = O_T_EE[:3, :3] @ invert(np.asarray(st.F_T_EE.matrix, dtype=float))[:3,
-                                                                               3]  # EE -> flange, base frame
+        r = (
+            O_T_EE[:3, :3] @ invert(np.asarray(st.F_T_EE.matrix, dtype=float))[:3, 3]
+        )  # EE -> flange, base frame
         v_ee = tw[:3] - np.cross(tw[3:], r)
-        m = franky.CartesianVelocityMotion(franky.Twist(v_ee, tw[3:]),
-                                           duration=franky.Duration(max(1, int(round(duration * 1000)))),
-                                           relative_dynamics_factor=self._dyn(max(np.linalg.norm(v_ee), 1e-3),
-                                                                              accel))
+        m = franky.CartesianVelocityMotion(
+            franky.Twist(v_ee, tw[3:]),
+            duration=franky.Duration(max(1, int(round(duration * 1000)))),
+            relative_dynamics_factor=self._dyn(max(np.linalg.norm(v_ee), 1e-3), accel),
+        )
         self._guard("velocity command", lambda: self._robot.move(m, asynchronous=True))
 
     def _stop(self, decel: float) -> None:
@@ -182,11 +217,13 @@ def make_franka(settings: FrankaSettings, ctx: Any) -> FrankaRobot:
     try:
         model = get_model(settings.model)
     except Exception as e:
-        raise SafetyError(f"robot.franka: unknown kinematic model {settings.model!r}",
-                          "use 'franka-panda'") from e
+        raise SafetyError(
+            f"robot.franka: unknown kinematic model {settings.model!r}", "use 'franka-panda'"
+        ) from e
     gate = SafetyGate(getattr(ctx, "safety", None), model=model)
-    return FrankaRobot(settings, name=getattr(ctx, "role", "franka"), gate=gate,
-                       dry_run=bool(getattr(ctx, "dry_run", False)))
+    return FrankaRobot(
+        settings, name=getattr(ctx, "role", "franka"), gate=gate, dry_run=bool(getattr(ctx, "dry_run", False))
+    )
 
 
 def probe_franka(settings: FrankaSettings, timeout: float = 1.0) -> str:
@@ -195,6 +232,8 @@ def probe_franka(settings: FrankaSettings, timeout: float = 1.0) -> str:
         with socket.create_connection((settings.host, FCI_PORT), timeout=timeout):
             pass
     except OSError as e:
-        raise DeviceError(f"Franka FCI at {settings.host}:{FCI_PORT} does not answer ({e})",
-                          "power the control unit, activate FCI in Desk, check the network") from e
+        raise DeviceError(
+            f"Franka FCI at {settings.host}:{FCI_PORT} does not answer ({e})",
+            "power the control unit, activate FCI in Desk, check the network",
+        ) from e
     return f"Franka FCI answers at {settings.host}:{FCI_PORT}"

@@ -13,11 +13,17 @@ class FrankaSettings(RobotMotionSettings):
     host: str = Field("172.16.0.2", description="FCI address of the robot's control unit")
     model: str = Field("franka-panda", description="kinematic model for the safety gate (weldcell.hal.sim)")
     relative_dynamics_factor: float = Field(
-        1.0, gt=0, le=1, description="global franky dynamics factor (multiplies every motion's)")
-    max_translation_speed: Speed = Field(1.7, gt=0, description="Franka's Cartesian speed limit [m/s] "
-                                         "(Panda 1.7, FR3 3.0); a TCP speed is commanded as a fraction of it")
-    max_translation_accel: Acceleration = Field(13.0, gt=0,
-                                                description="Franka's Cartesian acceleration limit")
+        1.0, gt=0, le=1, description="global franky dynamics factor (multiplies every motion's)"
+    )
+    max_translation_speed: Speed = Field(
+        1.7,
+        gt=0,
+        description="Franka's Cartesian speed limit [m/s] "
+        "(Panda 1.7, FR3 3.0); a TCP speed is commanded as a fraction of it",
+    )
+    max_translation_accel: Acceleration = Field(
+        13.0, gt=0, description="Franka's Cartesian acceleration limit"
+    )
     max_joint_speed: AngularSpeed = Field(2.175, gt=0, description="smallest joint speed limit [rad/s]")
     max_joint_accel: AngularAcceleration = Field(15.0, gt=0, description="smallest joint acceleration limit")
     torque_threshold: float = Field(20.0, gt=0, description="collision reflex torque threshold [Nm]")

@@ -40,6 +40,13 @@ def _probe(settings) -> str:
 def weldcell_register_devices(register):
     from .settings import PhoXiSettings
 
-    register(DeviceSpec(name="camera.phoxi", kind="depth_camera",
-                        summary="Photoneo PhoXi 3D scanner (GenTL via harvesters, or PLY replay)",
-                        settings=PhoXiSettings, factory=_factory, probe=_probe))
+    register(
+        DeviceSpec(
+            name="camera.phoxi",
+            kind="depth_camera",
+            summary="Photoneo PhoXi 3D scanner (GenTL via harvesters, or PLY replay)",
+            settings=PhoXiSettings,
+            factory=_factory,
+            probe=_probe,
+        )
+    )

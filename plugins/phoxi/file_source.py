@@ -20,8 +20,10 @@ from .settings import PhoXiSettings
 def resolve_files(spec: str) -> list[Path]:
     """PLY files named by ``spec``: a folder (its *.ply, sorted), a glob pattern, or one file."""
     if not spec:
-        raise DeviceError("phoxi file mode needs 'files' (a folder, glob or PLY file)",
-                          "set files = \"scans/*.ply\" in the device settings")
+        raise DeviceError(
+            "phoxi file mode needs 'files' (a folder, glob or PLY file)",
+            'set files = "scans/*.ply" in the device settings',
+        )
     p = Path(spec).expanduser()
     if p.is_dir():
         files = sorted(p.glob("*.ply"))
@@ -30,8 +32,9 @@ def resolve_files(spec: str) -> list[Path]:
     else:
         files = [p] if p.is_file() else []
     if not files:
-        raise DeviceError(f"no PLY file found at {spec!r}",
-                          "check the path/pattern in the phoxi 'files' setting")
+        raise DeviceError(
+            f"no PLY file found at {spec!r}", "check the path/pattern in the phoxi 'files' setting"
+        )
     return files
 
 
@@ -69,9 +72,14 @@ class PhoXiFileCamera(DepthCamera):
                 fx, fy, cx, cy = self.settings.intrinsics
                 allp = np.concatenate(loose)
                 allp = allp[np.isfinite(allp).all(axis=1) & (allp[:, 2] > 0)]
-                self._intr = Intrinsics(width=int(np.ceil((fx * allp[:, 0] / allp[:, 2] + cx).max())) + 1,
-                                        height=int(np.ceil((fy * allp[:, 1] / allp[:, 2] + cy).max())) + 1,
-                                        fx=fx, fy=fy, cx=cx, cy=cy)
+                self._intr = Intrinsics(
+                    width=int(np.ceil((fx * allp[:, 0] / allp[:, 2] + cx).max())) + 1,
+                    height=int(np.ceil((fy * allp[:, 1] / allp[:, 2] + cy).max())) + 1,
+                    fx=fx,
+                    fy=fy,
+                    cx=cx,
+                    cy=cy,
+                )
         self._first = self._load(self._files[0])
         if self._intr is None:
             self._intr = self._first.intrinsics
@@ -135,11 +143,18 @@ class PhoXiFileCamera(DepthCamera):
             f = self._first
         else:
             f = self._load(self._files[i])
-        return DepthFrame(stamp=time.time(), depth=f.depth, intrinsics=f.intrinsics, frame=f.frame,
-                          color=f.color, meta=dict(f.meta, index=i))
+        return DepthFrame(
+            stamp=time.time(),
+            depth=f.depth,
+            intrinsics=f.intrinsics,
+            frame=f.frame,
+            color=f.color,
+            meta=dict(f.meta, index=i),
+        )
 
     def _intrinsics(self) -> Intrinsics:
         if self._intr is None:
-            raise DeviceError(f"depth_camera '{self.name}': intrinsics are known once configured",
-                              "call configure() first")
+            raise DeviceError(
+                f"depth_camera '{self.name}': intrinsics are known once configured", "call configure() first"
+            )
         return self._intr

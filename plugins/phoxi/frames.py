@@ -27,14 +27,18 @@ def fit_intrinsics(xyz: np.ndarray) -> tuple[Intrinsics, float]:
     z = xyz[..., 2]
     valid = np.isfinite(z) & (z > 0)
     if valid.sum() < 3:
-        raise DataError("the point map has fewer than 3 valid points; cannot fit intrinsics",
-                        "check the scan (exposure, range) or give intrinsics in the settings")
+        raise DataError(
+            "the point map has fewer than 3 valid points; cannot fit intrinsics",
+            "check the scan (exposure, range) or give intrinsics in the settings",
+        )
     v, u = np.nonzero(valid)
     a = xyz[v, u, 0] / z[v, u]
     b = xyz[v, u, 1] / z[v, u]
     if np.ptp(a) < 1e-9 or np.ptp(b) < 1e-9:
-        raise DataError("the point map spans a single row or column; cannot fit intrinsics",
-                        "give (fx, fy, cx, cy) in the settings")
+        raise DataError(
+            "the point map spans a single row or column; cannot fit intrinsics",
+            "give (fx, fy, cx, cy) in the settings",
+        )
     (fx, cx), *_ = np.linalg.lstsq(np.column_stack([a, np.ones_like(a)]), u.astype(float), rcond=None)
     (fy, cy), *_ = np.linalg.lstsq(np.column_stack([b, np.ones_like(b)]), v.astype(float), rcond=None)
     res = np.sqrt(np.mean((fx * a + cx - u) ** 2 + (fy * b + cy - v) ** 2))
@@ -45,8 +49,9 @@ def _front(points: np.ndarray) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > 0)]
     if len(p) == 0:
-        raise DataError("the cloud has no point in front of the camera (z > 0)",
-                        "check the file's frame/units")
+        raise DataError(
+            "the cloud has no point in front of the camera (z > 0)", "check the file's frame/units"
+        )
     return p
 
 
@@ -62,12 +67,20 @@ def virtual_camera(clouds: list[np.ndarray]) -> Intrinsics:
     allp = np.concatenate([_front(c) for c in clouds])
     a, b = allp[:, 0] / allp[:, 2], allp[:, 1] / allp[:, 2]
     cx, cy = -f * a.min() + 0.5, -f * b.min() + 0.5
-    return Intrinsics(width=int(np.ceil(f * a.max() + cx)) + 1, height=int(np.ceil(f * b.max() + cy)) + 1,
-                      fx=f, fy=f, cx=cx, cy=cy)
+    return Intrinsics(
+        width=int(np.ceil(f * a.max() + cx)) + 1,
+        height=int(np.ceil(f * b.max() + cy)) + 1,
+        fx=f,
+        fy=f,
+        cx=cx,
+        cy=cy,
+    )
 
 
-def virtual_grid(points: np.ndarray, intrinsics: tuple[float, float, float, float] | Intrinsics | None = None,
-                 ) -> tuple[np.ndarray, np.ndarray, Intrinsics]:
+def virtual_grid(
+    points: np.ndarray,
+    intrinsics: tuple[float, float, float, float] | Intrinsics | None = None,
+) -> tuple[np.ndarray, np.ndarray, Intrinsics]:
     """Project an unorganised (N, 3) cloud (camera frame, z forward) into a z-buffered point map.
 
     Without given intrinsics a virtual pinhole is chosen whose pixel pitch at the median depth equals the
@@ -85,8 +98,14 @@ def virtual_grid(points: np.ndarray, intrinsics: tuple[float, float, float, floa
         fx, fy, cx, cy = intrinsics
         u_all = fx * p[:, 0] / p[:, 2] + cx
         v_all = fy * p[:, 1] / p[:, 2] + cy
-        k = Intrinsics(width=int(np.ceil(u_all.max())) + 1, height=int(np.ceil(v_all.max())) + 1,
-                       fx=fx, fy=fy, cx=cx, cy=cy)
+        k = Intrinsics(
+            width=int(np.ceil(u_all.max())) + 1,
+            height=int(np.ceil(v_all.max())) + 1,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+        )
     u = np.rint(k.fx * p[:, 0] / p[:, 2] + k.cx).astype(np.int64)
     v = np.rint(k.fy * p[:, 1] / p[:, 2] + k.cy).astype(np.int64)
     inside = (u >= 0) & (v >= 0) & (u < k.width) & (v < k.height)
@@ -94,7 +113,7 @@ def virtual_grid(points: np.ndarray, intrinsics: tuple[float, float, float, floa
     pix = v[idx] * k.width + u[idx]
     order = np.lexsort((p[idx, 2], pix))  # by pixel, nearest first
     pix, idx = pix[order], idx[order]
-    first = np.r_[True, pix[1:] != pix[:-1]][:len(pix)]
+    first = np.r_[True, pix[1:] != pix[:-1]][: len(pix)]
     owner = np.full(k.width * k.height, -1, dtype=np.int64)
     owner[pix[first]] = idx[first]
     grid = np.zeros((k.height * k.width, 3))
@@ -115,14 +134,22 @@ def texture_to_rgb(texture: np.ndarray) -> np.ndarray:
     return np.repeat(g8[..., None], 3, axis=2)
 
 
-def point_map_frame(xyz_m: np.ndarray, intrinsics: Intrinsics, frame: str, *, stamp: float | None = None,
-                    normals: np.ndarray | None = None, texture: np.ndarray | None = None,
-                    meta: dict | None = None) -> DepthFrame:
+def point_map_frame(
+    xyz_m: np.ndarray,
+    intrinsics: Intrinsics,
+    frame: str,
+    *,
+    stamp: float | None = None,
+    normals: np.ndarray | None = None,
+    texture: np.ndarray | None = None,
+    meta: dict | None = None,
+) -> DepthFrame:
     """A :class:`DepthFrame` from an organised (H, W, 3) point map in metres (invalid points all-zero/NaN)."""
     xyz = np.asarray(xyz_m, dtype=np.float64)
     if xyz.ndim != 3 or xyz.shape[2] != 3:
-        raise DataError(f"a point map must be (H, W, 3), got {xyz.shape}",
-                        "reshape the Range data to rows x cols")
+        raise DataError(
+            f"a point map must be (H, W, 3), got {xyz.shape}", "reshape the Range data to rows x cols"
+        )
     z = xyz[..., 2]
     valid = np.isfinite(xyz).all(axis=2) & (z > 0)
     depth = np.where(valid, z, 0.0).astype(np.float32)
@@ -137,8 +164,14 @@ def point_map_frame(xyz_m: np.ndarray, intrinsics: Intrinsics, frame: str, *, st
         color = rgb if rgb.shape[:2] == depth.shape else None
     if meta:
         m.update(meta)
-    return DepthFrame(stamp=time.time() if stamp is None else stamp, depth=depth, intrinsics=intrinsics,
-                      frame=frame, color=color, meta=m)
+    return DepthFrame(
+        stamp=time.time() if stamp is None else stamp,
+        depth=depth,
+        intrinsics=intrinsics,
+        frame=frame,
+        color=color,
+        meta=m,
+    )
 
 
 def exact_cloud(frame: DepthFrame) -> PointCloud:

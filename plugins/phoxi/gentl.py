@@ -69,8 +69,10 @@ def _set(nm: Any, name: str, value: Any, required: bool = True) -> bool:
     node = _node(nm, name)
     if node is None:
         if required:
-            raise DeviceError(f"the scanner has no GenICam feature {name!r}",
-                              "update the PhoXi firmware / PhoXi Control to 1.13 or newer")
+            raise DeviceError(
+                f"the scanner has no GenICam feature {name!r}",
+                "update the PhoXi firmware / PhoXi Control to 1.13 or newer",
+            )
         return False
     node.value = value
     return True
@@ -79,8 +81,13 @@ def _set(nm: Any, name: str, value: Any, required: bool = True) -> bool:
 class PhoXiGenTLCamera(DepthCamera):
     """A PhoXi scanner triggered in software; each ``capture()`` is one scan."""
 
-    def __init__(self, settings: PhoXiSettings, name: str = "phoxi", frame: str | None = None,
-                 harvester_factory: Callable[[], Any] = Harvester) -> None:
+    def __init__(
+        self,
+        settings: PhoXiSettings,
+        name: str = "phoxi",
+        frame: str | None = None,
+        harvester_factory: Callable[[], Any] = Harvester,
+    ) -> None:
         super().__init__(name, frame)
         self.settings = settings
         self._factory = harvester_factory
@@ -98,8 +105,10 @@ class PhoXiGenTLCamera(DepthCamera):
         self._h.update()
         infos = list(self._h.device_info_list)
         if not infos:
-            raise DeviceError("the GenTL producer lists no PhoXi scanner",
-                              "switch the scanner on, check the network and that PhoXi Control sees it")
+            raise DeviceError(
+                "the GenTL producer lists no PhoXi scanner",
+                "switch the scanner on, check the network and that PhoXi Control sees it",
+            )
         index = self._select(infos)
         self.device_info = dict(infos[index].property_dict)
         self._ia = self._h.create(index)
@@ -108,16 +117,23 @@ class PhoXiGenTLCamera(DepthCamera):
         _set(nm, "TriggerMode", "On")
         _set(nm, "TriggerSource", "Software")
         _set(nm, "Scan3dOutputMode", "CalibratedABC_Grid", required=False)
-        want = {"Intensity": self.settings.texture, "Range": True, "Confidence": self.settings.confidence,
-                "Normal": self.settings.normals, "Event": False, "ColorCamera": False}
+        want = {
+            "Intensity": self.settings.texture,
+            "Range": True,
+            "Confidence": self.settings.confidence,
+            "Normal": self.settings.normals,
+            "Event": False,
+            "ColorCamera": False,
+        }
         self._ids = {}
         for comp, on in want.items():
             try:
                 nm.ComponentSelector.value = comp
             except Exception:
                 if comp == "Range":
-                    raise DeviceError("the scanner has no 'Range' component",
-                                      "update the PhoXi firmware") from None
+                    raise DeviceError(
+                        "the scanner has no 'Range' component", "update the PhoXi firmware"
+                    ) from None
                 continue
             nm.ComponentEnable.value = bool(on)
             if on:
@@ -130,8 +146,10 @@ class PhoXiGenTLCamera(DepthCamera):
         if not want:
             if len(infos) > 1:
                 names = [_label(i) for i in infos]
-                raise DeviceError(f"{len(infos)} scanners found ({', '.join(names)}); which one?",
-                                  "set device_id to the scanner's ID")
+                raise DeviceError(
+                    f"{len(infos)} scanners found ({', '.join(names)}); which one?",
+                    "set device_id to the scanner's ID",
+                )
             return 0
         for i, info in enumerate(infos):
             d = info.property_dict
@@ -148,10 +166,14 @@ class PhoXiGenTLCamera(DepthCamera):
         ar = _node(nm, "Scan3dAspectRatio")
         pu, pv = _node(nm, "Scan3dPrincipalPointU"), _node(nm, "Scan3dPrincipalPointV")
         fx = float(f.value)
-        return Intrinsics(width=int(w.value), height=int(h.value), fx=fx,
-                          fy=fx * (float(ar.value) if ar is not None else 1.0),
-                          cx=float(pu.value) if pu is not None else (int(w.value) - 1) / 2.0,
-                          cy=float(pv.value) if pv is not None else (int(h.value) - 1) / 2.0)
+        return Intrinsics(
+            width=int(w.value),
+            height=int(h.value),
+            fx=fx,
+            fy=fx * (float(ar.value) if ar is not None else 1.0),
+            cx=float(pu.value) if pu is not None else (int(w.value) - 1) / 2.0,
+            cy=float(pv.value) if pv is not None else (int(h.value) - 1) / 2.0,
+        )
 
     def on_activate(self) -> None:
         self._ia.start()
@@ -206,7 +228,9 @@ class PhoXiGenTLCamera(DepthCamera):
             u, v = np.meshgrid(np.arange(w), np.arange(h))
             xyz = np.stack([(u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z], axis=2)
         else:
-            raise self.fault(f"unsupported Range pixel format {fmt!r}",)
+            raise self.fault(
+                f"unsupported Range pixel format {fmt!r}",
+            )
         normals = texture = None
         if "Normal" in by and str(by["Normal"].data_format).startswith("Coord3D_ABC"):
             normals = np.asarray(by["Normal"].data).reshape(h, w, 3)
@@ -225,9 +249,11 @@ class PhoXiGenTLCamera(DepthCamera):
 
     def _intrinsics(self) -> Intrinsics:
         if self._intr is None:
-            raise DeviceError(f"depth_camera '{self.name}': intrinsics are read at configure() "
-                              "(or fitted to the first scan when the scanner does not publish them)",
-                              "configure the device (and capture once) first")
+            raise DeviceError(
+                f"depth_camera '{self.name}': intrinsics are read at configure() "
+                "(or fitted to the first scan when the scanner does not publish them)",
+                "configure the device (and capture once) first",
+            )
         return self._intr
 
 

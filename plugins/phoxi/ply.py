@@ -16,9 +16,22 @@ import numpy as np
 from weldcell.sdk.errors import DataError
 
 _PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
-    "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4",
-    "double": "f8", "float64": "f8",
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
 }
 
 
@@ -42,8 +55,9 @@ class PlyGrid:
         return np.asarray(arr).reshape(self.rows, self.cols, *np.asarray(arr).shape[1:])
 
 
-def _parse_header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]],
-                                                   list[str], int]:
+def _parse_header(
+    path: Path, raw: bytes
+) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], list[str], int]:
     end = raw.find(b"end_header")
     if not raw.startswith(b"ply") or end < 0:
         raise DataError(f"{path} is not a PLY file (no 'ply' magic / 'end_header')", "export the scan as PLY")
@@ -89,19 +103,23 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         for name, count, props in elements:
             if any(t == "list" for t, _ in props):
                 if name == "vertex":
-                    raise DataError(f"{path}: list properties in vertices are not supported",
-                                    "export points only")
+                    raise DataError(
+                        f"{path}: list properties in vertices are not supported", "export points only"
+                    )
                 row += count
                 continue
-            block = text[row:row + count]
+            block = text[row : row + count]
             row += count
             if len(block) < count:
-                raise DataError(f"{path}: file ends after {len(block)} of {count} '{name}' rows",
-                                "the export is truncated; export it again")
+                raise DataError(
+                    f"{path}: file ends after {len(block)} of {count} '{name}' rows",
+                    "the export is truncated; export it again",
+                )
             arr = np.array(" ".join(block).split(), dtype=np.float64)
             if arr.size != count * len(props):
-                raise DataError(f"{path}: '{name}' rows do not have {len(props)} values each",
-                                "the export is malformed")
+                raise DataError(
+                    f"{path}: '{name}' rows do not have {len(props)} values each", "the export is malformed"
+                )
             arr = arr.reshape(count, len(props))
             values[name] = {p: arr[:, i] for i, (_, p) in enumerate(props)}
     else:
@@ -109,8 +127,9 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         for name, count, props in elements:
             if any(t == "list" for t, _ in props):
                 if name == "vertex":
-                    raise DataError(f"{path}: list properties in vertices are not supported",
-                                    "export points only")
+                    raise DataError(
+                        f"{path}: list properties in vertices are not supported", "export points only"
+                    )
                 break  # cannot skip variable-length rows; nothing after this is needed
             dt = np.dtype([(p, order + t) for t, p in props])
             need = dt.itemsize * count
@@ -134,12 +153,14 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         cols, rows = int(m_cols.group(1)), int(m_rows.group(1))
     if rows * cols != n:
         rows, cols = 1, n
-    return PlyGrid(path=path, vertex=vertex, rows=rows, cols=cols, organised=rows > 1 and cols > 1,
-                   header=lines)
+    return PlyGrid(
+        path=path, vertex=vertex, rows=rows, cols=cols, organised=rows > 1 and cols > 1, header=lines
+    )
 
 
-def write_ply_grid(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = None,
-                   binary: bool = True) -> Path:
+def write_ply_grid(
+    path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = None, binary: bool = True
+) -> Path:
     """Write an organised (H, W, 3) point map as a PCL-style PLY (``camera`` element = grid size)."""
     xyz = np.asarray(xyz, dtype=np.float32)
     h, w = xyz.shape[:2]
@@ -150,12 +171,33 @@ def write_ply_grid(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None
     fmt = "binary_little_endian" if binary else "ascii"
     head = ["ply", f"format {fmt} 1.0", "comment weldcell organised point map", f"element vertex {h * w}"]
     head += [f"property float {k}" for k in cols]
-    cam_props = ["view_px", "view_py", "view_pz", "x_axisx", "x_axisy", "x_axisz", "y_axisx", "y_axisy",
-                 "y_axisz", "z_axisx", "z_axisy", "z_axisz", "focal", "scalex", "scaley", "centerx",
-                 "centery"]
+    cam_props = [
+        "view_px",
+        "view_py",
+        "view_pz",
+        "x_axisx",
+        "x_axisy",
+        "x_axisz",
+        "y_axisx",
+        "y_axisy",
+        "y_axisz",
+        "z_axisx",
+        "z_axisy",
+        "z_axisz",
+        "focal",
+        "scalex",
+        "scaley",
+        "centerx",
+        "centery",
+    ]
     head += ["element camera 1"] + [f"property float {p}" for p in cam_props]
-    head += ["property int viewportx", "property int viewporty", "property float k1", "property float k2",
-             "end_header"]
+    head += [
+        "property int viewportx",
+        "property int viewporty",
+        "property float k1",
+        "property float k2",
+        "end_header",
+    ]
     cam_f = [0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 0, 0]
     path = Path(path)
     with open(path, "wb") as f:
@@ -165,8 +207,11 @@ def write_ply_grid(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None
             for k, v in cols.items():
                 rec[k] = v
             f.write(rec.tobytes())
-            f.write(np.array(cam_f, "<f4").tobytes() + np.array([w, h], "<i4").tobytes()
-                    + np.array([0, 0], "<f4").tobytes())
+            f.write(
+                np.array(cam_f, "<f4").tobytes()
+                + np.array([w, h], "<i4").tobytes()
+                + np.array([0, 0], "<f4").tobytes()
+            )
         else:
             np.savetxt(f, np.column_stack(list(cols.values())), fmt="%.9g")
             f.write((" ".join(str(v) for v in cam_f) + f" {w} {h} 0 0\n").encode("ascii"))

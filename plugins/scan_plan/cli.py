@@ -30,8 +30,13 @@ from weldcell.sdk.weldpath import WeldPath
 
 JOB = "scan-and-plan"
 SCANS_SCHEMA = "weldcell/posed-scans@1"
-EXPORT_ALIASES = {"urscript": "export.urscript", "abb-rapid": "export.abb-rapid", "rapid": "export.abb-rapid",
-                  "csv": "export.csv", "json": "export.json"}
+EXPORT_ALIASES = {
+    "urscript": "export.urscript",
+    "abb-rapid": "export.abb-rapid",
+    "rapid": "export.abb-rapid",
+    "csv": "export.csv",
+    "json": "export.json",
+}
 
 
 # ------------------------------------------------------------------------------------------------ stages
@@ -42,8 +47,9 @@ def parse_sets(sets: tuple[str, ...] | list[str]) -> dict[str, dict[str, Any]]:
         key, sep, raw = item.partition("=")
         role, dot, name = key.strip().partition(".")
         if not sep or not dot or not role or not name:
-            raise UsageError(f"--set {item!r} is not ROLE.KEY=VALUE",
-                             "write e.g. --set seam.min_seam_length='30 mm'")
+            raise UsageError(
+                f"--set {item!r} is not ROLE.KEY=VALUE", "write e.g. --set seam.min_seam_length='30 mm'"
+            )
         try:
             value = tomllib.loads(f"v = {raw.strip()}")["v"]
         except tomllib.TOMLDecodeError:
@@ -52,8 +58,12 @@ def parse_sets(sets: tuple[str, ...] | list[str]) -> dict[str, dict[str, Any]]:
     return out
 
 
-def resolve_stages(pm, roles: tuple[str, ...], profile: Path | None = None,
-                   overrides: dict[str, dict[str, Any]] | None = None) -> dict[str, tuple[Any, Any]]:
+def resolve_stages(
+    pm,
+    roles: tuple[str, ...],
+    profile: Path | None = None,
+    overrides: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, tuple[Any, Any]]:
     """``{role: (StageSpec, settings)}`` for the scan-and-plan stage ``roles``.
 
     The plugin of each role is the job's default, or the one ``profile``'s ``[stages.<role>]`` picks;
@@ -65,8 +75,10 @@ def resolve_stages(pm, roles: tuple[str, ...], profile: Path | None = None,
     overrides = dict(overrides or {})
     unknown = sorted(set(overrides) - set(roles))
     if unknown:
-        raise UsageError(f"no stage role {', '.join(map(repr, unknown))} in this command",
-                         f"its stage roles are: {', '.join(roles)}")
+        raise UsageError(
+            f"no stage role {', '.join(map(repr, unknown))} in this command",
+            f"its stage roles are: {', '.join(roles)}",
+        )
     entries: dict[str, Any] = {}
     where = "defaults"
     if profile is not None:
@@ -90,8 +102,10 @@ def resolve_stages(pm, roles: tuple[str, ...], profile: Path | None = None,
 
             problems = "; ".join(f"{role}.{'.'.join(k)}: {m}" for k, m in pydantic_problems(e))
             fields = ", ".join(spec.settings.model_fields)
-            raise UsageError(f"settings of stage '{name}' ({where} + options) are invalid: {problems}",
-                             f"its settings are: {fields}") from None
+            raise UsageError(
+                f"settings of stage '{name}' ({where} + options) are invalid: {problems}",
+                f"its settings are: {fields}",
+            ) from None
         out[role] = (spec, settings)
     return out
 
@@ -116,12 +130,16 @@ def read_input_cloud(path: Path, units: str, frame: str) -> tuple[PointCloud, in
         o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False), frame=frame
     )
     if len(raw) == 0:
-        raise DataError(f"{path} has no points (empty or unreadable file)",
-                        "check the file; export the scan again as PLY or PCD")
+        raise DataError(
+            f"{path} has no points (empty or unreadable file)",
+            "check the file; export the scan again as PLY or PCD",
+        )
     cloud = drop_invalid(raw)
     if len(cloud) == 0:
-        raise DataError(f"{path}: all {len(raw)} points are NaN, infinite or at the origin",
-                        "the scan holds no valid depth; capture it again")
+        raise DataError(
+            f"{path}: all {len(raw)} points are NaN, infinite or at the origin",
+            "the scan holds no valid depth; capture it again",
+        )
     check_units(cloud, units, what=str(path))
     cloud.points = cloud.points * UNIT_SCALE[units]
     cloud.meta["source"] = str(path)
@@ -132,13 +150,16 @@ def parse_floats(text: str, n: int, dims: tuple[str, ...], what: str) -> np.ndar
     """``"a,b,c"`` with optional units per value (``"0,-60mm,40 mm"``) → SI floats."""
     parts = [p for p in text.split(",")]
     if len(parts) != n:
-        raise UsageError(f"{what} needs {n} comma-separated values, got {len(parts)}: {text!r}",
-                         f"write e.g. {','.join(['0'] * n)}")
+        raise UsageError(
+            f"{what} needs {n} comma-separated values, got {len(parts)}: {text!r}",
+            f"write e.g. {','.join(['0'] * n)}",
+        )
     try:
         return np.array([parse_quantity(p.strip(), d) for p, d in zip(parts, dims, strict=True)])
     except ValueError as e:
-        raise UsageError(f"{what}: {e}",
-                         "numbers in metres/radians, or with units like '60 mm', '90 deg'") from None
+        raise UsageError(
+            f"{what}: {e}", "numbers in metres/radians, or with units like '60 mm', '90 deg'"
+        ) from None
 
 
 # ------------------------------------------------------------------------------------------------ seams
@@ -152,8 +173,9 @@ class SeamRun:
     timings: dict[str, float] = field(default_factory=dict)
 
 
-def plan_seams(cloud: PointCloud, stages: dict[str, tuple[Any, Any]], frame: str = "base",
-               denoise: bool = True) -> SeamRun:
+def plan_seams(
+    cloud: PointCloud, stages: dict[str, tuple[Any, Any]], frame: str = "base", denoise: bool = True
+) -> SeamRun:
     """Denoise (optional) → seams → torch paths with the given stage plugins, as the job does."""
     timings: dict[str, float] = {}
 
@@ -201,9 +223,11 @@ def seam_table(path: WeldPath) -> list[str]:
     lines = []
     for s in path.seams:
         a, b = s.points[0] * 1000, s.points[-1] * 1000
-        lines.append(f"  {s.id:>4}  {s.joint:<8} {s.length * 1000:7.1f} mm  {len(s.poses):4d} torch poses  "
-                     f"from ({a[0]:.1f}, {a[1]:.1f}, {a[2]:.1f}) to ({b[0]:.1f}, {b[1]:.1f}, {b[2]:.1f}) mm"
-                     + ("  closed" if s.closed else ""))
+        lines.append(
+            f"  {s.id:>4}  {s.joint:<8} {s.length * 1000:7.1f} mm  {len(s.poses):4d} torch poses  "
+            f"from ({a[0]:.1f}, {a[1]:.1f}, {a[2]:.1f}) to ({b[0]:.1f}, {b[1]:.1f}, {b[2]:.1f}) mm"
+            + ("  closed" if s.closed else "")
+        )
     return lines
 
 
@@ -215,26 +239,59 @@ def _pm():
 
 @click.command("seam")
 @click.argument("cloud", type=click.Path(path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
-              help="Weld-path JSON to write.")
-@click.option("--units", type=click.Choice(["m", "mm"]), default="m", show_default=True,
-              help="Units of the cloud's coordinates.")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Weld-path JSON to write."
+)
+@click.option(
+    "--units",
+    type=click.Choice(["m", "mm"]),
+    default="m",
+    show_default=True,
+    help="Units of the cloud's coordinates.",
+)
 @click.option("--frame", default="base", show_default=True, help="Frame the cloud is in (the robot base).")
 @click.option("--t", "t", type=float, help="Edge threshold on Tr(H)^3/Det(H) (eq. 16) of the seam stage.")
 @click.option("--standoff", help="Torch standoff, e.g. '15 mm' (default: the path stage's).")
-@click.option("--export", "exports", multiple=True,
-              help="Also write a robot program: urscript, abb-rapid, csv (or any exporter name). Repeatable.")
+@click.option(
+    "--export",
+    "exports",
+    multiple=True,
+    help="Also write a robot program: urscript, abb-rapid, csv (or any exporter name). Repeatable.",
+)
 @click.option("--no-denoise", is_flag=True, help="Skip the bilateral filter (the cloud is already clean).")
 @click.option("--viewpoint", help="Where the camera was, x,y,z in the base frame (orients the normals).")
-@click.option("--report", "report_dir", type=click.Path(path_type=Path),
-              help="Write seams.png and summary.txt into this folder.")
-@click.option("--profile", type=click.Path(path_type=Path),
-              help="Take the stage plugins and settings from this profile's [stages].")
-@click.option("--set", "sets", multiple=True, metavar="ROLE.KEY=VALUE",
-              help="Set a stage setting, e.g. seam.min_seam_length='30 mm'. Repeatable.")
-def seam_command(cloud: Path, output: Path, units: str, frame: str, t: float | None, standoff: str | None,
-                 exports: tuple[str, ...], no_denoise: bool, viewpoint: str | None, report_dir: Path | None,
-                 profile: Path | None, sets: tuple[str, ...]) -> None:
+@click.option(
+    "--report",
+    "report_dir",
+    type=click.Path(path_type=Path),
+    help="Write seams.png and summary.txt into this folder.",
+)
+@click.option(
+    "--profile",
+    type=click.Path(path_type=Path),
+    help="Take the stage plugins and settings from this profile's [stages].",
+)
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="ROLE.KEY=VALUE",
+    help="Set a stage setting, e.g. seam.min_seam_length='30 mm'. Repeatable.",
+)
+def seam_command(
+    cloud: Path,
+    output: Path,
+    units: str,
+    frame: str,
+    t: float | None,
+    standoff: str | None,
+    exports: tuple[str, ...],
+    no_denoise: bool,
+    viewpoint: str | None,
+    report_dir: Path | None,
+    profile: Path | None,
+    sets: tuple[str, ...],
+) -> None:
     """Find the weld seams of CLOUD (PLY/PCD, robot base frame) and plan 6-DOF torch paths.
 
     Writes a weldcell/weld-path@1 JSON (metres, quaternions [x, y, z, w]).
@@ -254,8 +311,10 @@ def seam_command(cloud: Path, output: Path, units: str, frame: str, t: float | N
     t0 = time.perf_counter()
     pc, dropped = read_input_cloud(cloud, units, frame)
     t_read = time.perf_counter() - t0
-    click.echo(f"cloud           {cloud}: {len(pc)} points, extent "
-               f"{' x '.join(f'{v * 1000:.0f}' for v in np.ptp(pc.points, axis=0))} mm")
+    click.echo(
+        f"cloud           {cloud}: {len(pc)} points, extent "
+        f"{' x '.join(f'{v * 1000:.0f}' for v in np.ptp(pc.points, axis=0))} mm"
+    )
     if dropped:
         click.echo(f"                dropped {dropped} invalid points (NaN, inf or at the origin)")
     if viewpoint is not None:
@@ -263,17 +322,25 @@ def seam_command(cloud: Path, output: Path, units: str, frame: str, t: float | N
     result = plan_seams(pc, stages, frame=frame, denoise=not no_denoise)
     path = result.path
     if not path.seams:
-        raise DataError(f"no weld seam was found on {cloud} ({len(result.cloud)} points)",
-                        "check the cloud shows the joint; lower --t, or --set seam.min_seam_length='10 mm'")
+        raise DataError(
+            f"no weld seam was found on {cloud} ({len(result.cloud)} points)",
+            "check the cloud shows the joint; lower --t, or --set seam.min_seam_length='10 mm'",
+        )
     runtime = t_read + sum(result.timings.values())
     length = sum(s.length for s in path.seams)
     path.metrics = {
-        "source": str(cloud), "points": len(pc), "points_processed": len(result.cloud),
-        "dropped_invalid": dropped, "seams_found": len(path.seams), "seam_length_m": round(length, 6),
-        "runtime_s": round(runtime, 4), "mm_per_s": round(length * 1000 / runtime, 2),
+        "source": str(cloud),
+        "points": len(pc),
+        "points_processed": len(result.cloud),
+        "dropped_invalid": dropped,
+        "seams_found": len(path.seams),
+        "seam_length_m": round(length, 6),
+        "runtime_s": round(runtime, 4),
+        "mm_per_s": round(length * 1000 / runtime, 2),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
-        "stages": {r: {"plugin": sp.name, "settings": st.model_dump(mode="json")}
-                   for r, (sp, st) in stages.items()},
+        "stages": {
+            r: {"plugin": sp.name, "settings": st.model_dump(mode="json")} for r, (sp, st) in stages.items()
+        },
     }
     path.write(output)
     written = [output]
@@ -286,18 +353,25 @@ def seam_command(cloud: Path, output: Path, units: str, frame: str, t: float | N
         written.append(f)
     if not no_denoise:
         click.echo(f"denoised        {len(result.cloud)} points ({stages['denoise'][0].name})")
-    click.echo(f"seams found     {len(path.seams)} ({stages['seam'][0].name}, "
-               f"paths: {stages['path'][0].name})")
+    click.echo(
+        f"seams found     {len(path.seams)} ({stages['seam'][0].name}, paths: {stages['path'][0].name})"
+    )
     table = seam_table(path)
     for line in table:
         click.echo(line)
     timing = ", ".join(f"{k} {v:.2f}s" for k, v in result.timings.items())
-    click.echo(f"timings         read {t_read:.2f}s, {timing}  "
-               f"({length * 1000 / runtime:.0f} mm of seam per s)")
+    click.echo(
+        f"timings         read {t_read:.2f}s, {timing}  ({length * 1000 / runtime:.0f} mm of seam per s)"
+    )
     if report_dir is not None:
         pic = write_seam_picture(report_dir, result.cloud, path, f"{cloud.name}: {len(path.seams)} seam(s)")
-        summary = [f"weldcell seam {cloud}", f"points {len(pc)}, processed {len(result.cloud)}",
-                   f"seams {len(path.seams)}", *table, f"timings read {t_read:.2f}s, {timing}"]
+        summary = [
+            f"weldcell seam {cloud}",
+            f"points {len(pc)}, processed {len(result.cloud)}",
+            f"seams {len(path.seams)}",
+            *table,
+            f"timings read {t_read:.2f}s, {timing}",
+        ]
         (report_dir / "summary.txt").write_text("\n".join(summary) + "\n")
         written += [pic, report_dir / "summary.txt"]
     click.echo("written         " + ", ".join(str(f) for f in written))
@@ -317,20 +391,26 @@ class PosedScans:
 
 def _pose(value: Any, name: str, where: Path, scale: float) -> np.ndarray:
     if value is None:
-        raise DataError(f"{where}: scan {name} has no pose (T_base_flange)",
-                        "give every scan the robot's flange pose at capture as a 4x4 matrix 'T_base_flange'")
+        raise DataError(
+            f"{where}: scan {name} has no pose (T_base_flange)",
+            "give every scan the robot's flange pose at capture as a 4x4 matrix 'T_base_flange'",
+        )
     try:
         T = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         T = np.zeros(0)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise DataError(f"{where}: the pose of scan {name} is not a finite 4x4 matrix",
-                        "write T_base_flange as [[r11, r12, r13, x], ..., [0, 0, 0, 1]]")
+        raise DataError(
+            f"{where}: the pose of scan {name} is not a finite 4x4 matrix",
+            "write T_base_flange as [[r11, r12, r13, x], ..., [0, 0, 0, 1]]",
+        )
     T = T.copy()
     T[:3, 3] *= scale
     if not is_rigid(T, tol=1e-4):
-        raise DataError(f"{where}: the pose of scan {name} is not a rigid transform",
-                        "its rotation part must be orthonormal with determinant +1 and its last row 0 0 0 1")
+        raise DataError(
+            f"{where}: the pose of scan {name} is not a rigid transform",
+            "its rotation part must be orthonormal with determinant +1 and its last row 0 0 0 1",
+        )
     return T
 
 
@@ -348,9 +428,11 @@ def load_posed_scans(source: Path) -> PosedScans:
     elif (source / "state.json").is_file():
         index, folder = source / "state.json", source
     elif source.is_dir():
-        raise DataError(f"{source} holds neither scans.json nor a run's state.json",
-                        f'write a scans.json: {{"schema": "{SCANS_SCHEMA}", "units": "m", "scans": '
-                        '[{"cloud": "000.ply", "T_base_flange": [[...4x4...]], "stamp": 0.0}, ...]}')
+        raise DataError(
+            f"{source} holds neither scans.json nor a run's state.json",
+            f'write a scans.json: {{"schema": "{SCANS_SCHEMA}", "units": "m", "scans": '
+            '[{"cloud": "000.ply", "T_base_flange": [[...4x4...]], "stamp": 0.0}, ...]}',
+        )
     else:
         raise DataError(f"scans folder not found: {source}", "check the path")
     doc = read_json(index)
@@ -366,8 +448,10 @@ def load_posed_scans(source: Path) -> PosedScans:
         roi = _run_roi(folder)
     else:
         if doc.get("schema") != SCANS_SCHEMA:
-            raise DataError(f"{index}: schema is {doc.get('schema')!r}, expected {SCANS_SCHEMA!r}",
-                            f'add "schema": "{SCANS_SCHEMA}"')
+            raise DataError(
+                f"{index}: schema is {doc.get('schema')!r}, expected {SCANS_SCHEMA!r}",
+                f'add "schema": "{SCANS_SCHEMA}"',
+            )
         layout, units, records, key = "scans.json", doc.get("units", "m"), doc.get("scans"), "cloud"
         roi = (doc.get("roi_min"), doc.get("roi_max"))
         if units not in UNIT_SCALE:
@@ -382,7 +466,7 @@ def load_posed_scans(source: Path) -> PosedScans:
     scans, names = [], []
     for i, rec in enumerate(records):
         if not isinstance(rec, dict) or not rec.get(key):
-            raise DataError(f"{index}: scan {i} names no cloud file ('{key}')", f"add \"{key}\": \"NNN.ply\"")
+            raise DataError(f"{index}: scan {i} names no cloud file ('{key}')", f'add "{key}": "NNN.ply"')
         name = f"{i} ({rec[key]})"
         T = _pose(rec.get("T_base_flange"), name, index, scale)
         cloud, _ = read_input_cloud(folder / rec[key], units, "camera")
@@ -418,29 +502,54 @@ def hand_eye_option(
         return T_from_rpy(v[3:], v[:3]), "--mount"
     if stored is not None:
         return stored, "stored with the scans"
-    raise UsageError("no hand-eye transform: the scans do not store one",
-                     "pass --hand-eye handeye.json (from `weldcell calibrate hand-eye`) "
-                     "or --mount x,y,z,r,p,y")
+    raise UsageError(
+        "no hand-eye transform: the scans do not store one",
+        "pass --hand-eye handeye.json (from `weldcell calibrate hand-eye`) or --mount x,y,z,r,p,y",
+    )
 
 
 @click.command("reconstruct")
 @click.argument("scans_dir", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Model cloud to write.")
-@click.option("--hand-eye", "hand_eye", type=click.Path(path_type=Path),
-              help="Hand-eye result (T_flange_camera), e.g. from `weldcell calibrate hand-eye`.")
-@click.option("--mount",
-              help="Nominal camera mount on the flange: x,y,z,roll,pitch,yaw (m, rad, or with units).")
-@click.option("--roi-min", help="Keep only points above this corner x,y,z of the base frame (default: the "
-              "run's region).")
-@click.option("--roi-max", help="Keep only points below this corner x,y,z of the base frame (default: the "
-              "run's region).")
-@click.option("--profile", type=click.Path(path_type=Path),
-              help="Take the reconstruct stage plugin and settings from this profile's [stages].")
-@click.option("--set", "sets", multiple=True, metavar="reconstruct.KEY=VALUE",
-              help="Set a stage setting, e.g. reconstruct.voxel='2 mm'. Repeatable.")
-def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mount: str | None,
-                        roi_min: str | None, roi_max: str | None, profile: Path | None,
-                        sets: tuple[str, ...]) -> None:
+@click.option(
+    "--hand-eye",
+    "hand_eye",
+    type=click.Path(path_type=Path),
+    help="Hand-eye result (T_flange_camera), e.g. from `weldcell calibrate hand-eye`.",
+)
+@click.option(
+    "--mount", help="Nominal camera mount on the flange: x,y,z,roll,pitch,yaw (m, rad, or with units)."
+)
+@click.option(
+    "--roi-min",
+    help="Keep only points above this corner x,y,z of the base frame (default: the run's region).",
+)
+@click.option(
+    "--roi-max",
+    help="Keep only points below this corner x,y,z of the base frame (default: the run's region).",
+)
+@click.option(
+    "--profile",
+    type=click.Path(path_type=Path),
+    help="Take the reconstruct stage plugin and settings from this profile's [stages].",
+)
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="reconstruct.KEY=VALUE",
+    help="Set a stage setting, e.g. reconstruct.voxel='2 mm'. Repeatable.",
+)
+def reconstruct_command(
+    scans_dir: Path,
+    output: Path,
+    hand_eye: Path | None,
+    mount: str | None,
+    roi_min: str | None,
+    roi_max: str | None,
+    profile: Path | None,
+    sets: tuple[str, ...],
+) -> None:
     """Merge posed scans into one model in the robot base frame, refined by linear ICP.
 
     SCANS_DIR is a scan-and-plan run folder (state.json) or a folder with a scans.json
@@ -460,31 +569,51 @@ def reconstruct_command(scans_dir: Path, output: Path, hand_eye: Path | None, mo
 
         cropped = crop_views(data.scans, T_fc, lo, hi)
         if not cropped:
-            raise DataError("no scan has points inside the region of interest",
-                            "check --roi-min / --roi-max (metres, robot base frame) against the part")
+            raise DataError(
+                "no scan has points inside the region of interest",
+                "check --roi-min / --roi-max (metres, robot base frame) against the part",
+            )
         views, names = [v for _, v in cropped], [data.names[i] for i, _ in cropped]
         fmt = lambda c: "-" if c is None else "(" + ", ".join(f"{v * 1000:.0f}" for v in c) + ") mm"  # noqa: E731
-        click.echo(f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "
-                   "views have points in it")
+        click.echo(
+            f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "
+            "views have points in it"
+        )
     t0 = time.perf_counter()
     rec = spec.factory(settings)(views, T_fc)
     dt = time.perf_counter() - t0
     write_cloud(output, rec.cloud)
-    click.echo(f"{'view':>4}  {'file':<16} {'points':>7}  {'fitness before':>14}  {'after':>6}  "
-               f"{'correction':>17}  kept")
+    click.echo(
+        f"{'view':>4}  {'file':<16} {'points':>7}  {'fitness before':>14}  {'after':>6}  "
+        f"{'correction':>17}  kept"
+    )
     for i, name in enumerate(names):
         C = rec.corrections[i]
         corr = f"{np.linalg.norm(C[:3, 3]) * 1000:6.2f} mm {np.degrees(rotation_angle(C[:3, :3])):5.2f} deg"
-        click.echo(f"{i:>4}  {name:<16} {len(views[i].cloud):>7}  {rec.fitness_before[i]:>14.3f}  "
-                   f"{rec.fitness[i]:>6.3f}  {corr:>17}  {'yes' if rec.accepted[i] else 'no'}")
+        click.echo(
+            f"{i:>4}  {name:<16} {len(views[i].cloud):>7}  {rec.fitness_before[i]:>14.3f}  "
+            f"{rec.fitness[i]:>6.3f}  {corr:>17}  {'yes' if rec.accepted[i] else 'no'}"
+        )
     click.echo(f"model           {len(rec.cloud)} points -> {output}  ({dt:.2f} s, {spec.name})")
-    write_json(output.with_suffix(".json"), {
-        "schema": "weldcell/reconstruction@1", "model": output.name, "scans": str(scans_dir),
-        "hand_eye": source, "T_flange_camera": T_fc.tolist(),
-        "stage": {"plugin": spec.name, "settings": settings.model_dump(mode="json")},
-        "views": [{"file": n, "fitness_before": rec.fitness_before[i], "fitness": rec.fitness[i],
-                   "accepted": bool(rec.accepted[i]),
-                   "T_base_camera": np.asarray(rec.T_base_camera[i]).tolist()}
-                  for i, n in enumerate(names)],
-        "runtime_s": round(dt, 4),
-    })
+    write_json(
+        output.with_suffix(".json"),
+        {
+            "schema": "weldcell/reconstruction@1",
+            "model": output.name,
+            "scans": str(scans_dir),
+            "hand_eye": source,
+            "T_flange_camera": T_fc.tolist(),
+            "stage": {"plugin": spec.name, "settings": settings.model_dump(mode="json")},
+            "views": [
+                {
+                    "file": n,
+                    "fitness_before": rec.fitness_before[i],
+                    "fitness": rec.fitness[i],
+                    "accepted": bool(rec.accepted[i]),
+                    "T_base_camera": np.asarray(rec.T_base_camera[i]).tolist(),
+                }
+                for i, n in enumerate(names)
+            ],
+            "runtime_s": round(dt, 4),
+        },
+    )

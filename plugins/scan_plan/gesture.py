@@ -26,7 +26,6 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 from scipy.spatial.transform import Rotation
-
 from weldcell.hal.readings import Hand, HandsFrame
 from weldcell.sdk.geometry import T_from_rpy, orthonormalize
 from weldcell.sdk.settings import Settings

@@ -51,19 +51,24 @@ def read_hand_eye(path) -> np.ndarray:
 
     doc = read_json(path)
     if not isinstance(doc, dict):
-        raise DataError(f"{path}: not a hand-eye file (a JSON object with a 4x4 'T')",
-                        "write it with `weldcell calibrate hand-eye`")
+        raise DataError(
+            f"{path}: not a hand-eye file (a JSON object with a 4x4 'T')",
+            "write it with `weldcell calibrate hand-eye`",
+        )
     name = doc.get("transform")
     if isinstance(name, str) and name not in ("T_flange_camera", "T_tool0_camera", "T_ee_camera"):
-        raise DataError(f"{path}: this hand-eye result is {name}, not T_flange_camera (camera on the flange)",
-                        "scan-and-plan needs an eye-in-hand calibration; calibrate with config 'eye-in-hand'")
+        raise DataError(
+            f"{path}: this hand-eye result is {name}, not T_flange_camera (camera on the flange)",
+            "scan-and-plan needs an eye-in-hand calibration; calibrate with config 'eye-in-hand'",
+        )
     try:
         T = np.asarray(doc.get("T", doc.get("T_flange_camera")), dtype=float)
     except (TypeError, ValueError):
         T = np.zeros(0)
     if T.shape != (4, 4) or not is_rigid(T, tol=1e-4):
-        raise DataError(f"{path}: no rigid 4x4 'T' in the hand-eye file",
-                        "write it with `weldcell calibrate hand-eye`")
+        raise DataError(
+            f"{path}: no rigid 4x4 'T' in the hand-eye file", "write it with `weldcell calibrate hand-eye`"
+        )
     units = doc.get("units", "m")
     if units != "m":
         from weldcell.sdk.cloud import UNIT_SCALE
@@ -131,8 +136,10 @@ def load_captures(ctx) -> list[PosedScan]:
     for i, rec in enumerate(ctx.state.captures):
         f = ctx.run_dir / rec["file"]
         if not f.is_file():
-            raise JobError(f"capture {i} of the resumed run ({rec['file']}) is missing from {ctx.run_dir}",
-                           "restore the file, or start a new run without --resume")
+            raise JobError(
+                f"capture {i} of the resumed run ({rec['file']}) is missing from {ctx.run_dir}",
+                "restore the file, or start a new run without --resume",
+            )
         cloud = read_cloud(f, units="m", frame="camera", check_scale=False)
         scans.append(PosedScan(cloud, np.asarray(rec["T_base_flange"], dtype=float), float(rec["stamp"])))
     return scans
@@ -165,13 +172,16 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
                 pose = robot.state().T_base_flange
                 cloud = drop_invalid(depth.to_cloud())
                 if len(cloud) < s.min_depth_points:
-                    ctx.reporter.info(f"[yellow]capture refused: only {len(cloud)} valid points (is the part "
-                                      "in view and in range?)[/yellow]")
+                    ctx.reporter.info(
+                        f"[yellow]capture refused: only {len(cloud)} valid points (is the part "
+                        "in view and in range?)[/yellow]"
+                    )
                     continue
                 name = f"scans/{len(scans):03d}.ply"
                 write_cloud(ctx.path(name), cloud)
-                ctx.state.add_capture({"file": name, "T_base_flange": pose.tolist(), "stamp": depth.stamp,
-                                       "points": len(cloud)})
+                ctx.state.add_capture(
+                    {"file": name, "T_base_flange": pose.tolist(), "stamp": depth.stamp, "points": len(cloud)}
+                )
                 scans.append(PosedScan(cloud, pose, depth.stamp))
                 advance(len(scans), s.max_captures, f"{len(cloud)} pts")
             if cmd.stop:
@@ -188,8 +198,10 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
                         )
     ctx.figures["scan"] = {"captures": len(scans), "resumed_captures": resumed, "refused_targets": refused}
     if len(scans) < s.min_captures:
-        raise JobError(f"the scan ended with {len(scans)} capture(s); at least {s.min_captures} are needed",
-                       "make the 'ok' sign with the right hand while the part is in view")
+        raise JobError(
+            f"the scan ended with {len(scans)} capture(s); at least {s.min_captures} are needed",
+            "make the 'ok' sign with the right hand while the part is in view",
+        )
     return scans
 
 
@@ -215,8 +227,10 @@ def crop_to_roi(scans: list[PosedScan], T_flange_camera, lo, hi) -> list[PosedSc
     """Drop each view's points outside the region of interest (robot base frame)."""
     out = [sc for _, sc in crop_views(scans, T_flange_camera, lo, hi)]
     if not out:
-        raise JobError("no capture has points inside the region of interest",
-                       "check [job.settings] roi_min / roi_max against where the part is")
+        raise JobError(
+            "no capture has points inside the region of interest",
+            "check [job.settings] roi_min / roi_max against where the part is",
+        )
     return out
 
 
@@ -267,8 +281,9 @@ def plan_execution(robot, path, speed: float, approach: float) -> list[SeamMotio
                 q = gate.check_linear(T_seg, T, T_ft, speed, robot.motion.accel, q, f"path segment {i}")
                 T_seg = T
         except SafetyError as e:
-            raise SafetyError(f"seam {seam.id} cannot be welded: {e.message}; nothing was sent to the robot",
-                              e.fix) from None
+            raise SafetyError(
+                f"seam {seam.id} cannot be welded: {e.message}; nothing was sent to the robot", e.fix
+            ) from None
         plans.append(SeamMotion(seam.id, q_high, high, above, poses))
         T_prev = high
     return plans
@@ -313,12 +328,23 @@ def evaluate(weld_path, gt, standoff: float) -> dict:
         return {"seams_found": len(weld_path.seams), "seams_true": len(gt or [])}
     gt_pts = np.vstack([s.points for _, s in gt])
     pred_pts = np.vstack([s.points for s in weld_path.seams])
-    out = {"seams_found": len(weld_path.seams), "seams_true": len(gt),
-           "f1": seam_f1(pred_pts, gt_pts, cell=0.002, tolerance_cells=1)}
+    out = {
+        "seams_found": len(weld_path.seams),
+        "seams_true": len(gt),
+        "f1": seam_f1(pred_pts, gt_pts, cell=0.002, tolerance_cells=1),
+    }
     per = []
     for seam in weld_path.seams:
-        name, truth = min(gt, key=lambda g: float(np.mean(np.min(np.linalg.norm(
-            seam.points[::5, None, :] - g[1].points[None, ::5, :], axis=2), axis=1))))
+        name, truth = min(
+            gt,
+            key=lambda g: float(
+                np.mean(
+                    np.min(
+                        np.linalg.norm(seam.points[::5, None, :] - g[1].points[None, ::5, :], axis=2), axis=1
+                    )
+                )
+            ),
+        )
         approach = np.asarray(seam.extra["approach"], dtype=float)
         travel = travel_directions(seam.points, 5, seam.closed)
         frames = torch_frames(seam.points, approach, travel, standoff=0.0, work_angle=0.0, travel_angle=0.0)
@@ -342,20 +368,27 @@ def run(ctx) -> dict:
     scans = crop_to_roi(gesture_scan(ctx, T_flange_camera), T_flange_camera, s.roi_min, s.roi_max)
 
     with ctx.step("reconstruct (merge + linear ICP)", total=len(scans)) as advance:
-        rec = ctx.stage("reconstruct")(scans, T_flange_camera,
-                                       progress=lambda i, n, msg="": advance(i, n, msg))
+        rec = ctx.stage("reconstruct")(
+            scans, T_flange_camera, progress=lambda i, n, msg="": advance(i, n, msg)
+        )
         write_cloud(ctx.path("model.ply"), rec.cloud)
         rec.cloud.meta["viewpoints"] = [(sc.T_base_flange @ T_flange_camera)[:3, 3].tolist() for sc in scans]
-    ctx.figures["reconstruction"] = {"points": len(rec.cloud), "fitness_before": rec.fitness_before,
-                                     "fitness": rec.fitness, "accepted": rec.accepted}
+    ctx.figures["reconstruction"] = {
+        "points": len(rec.cloud),
+        "fitness_before": rec.fitness_before,
+        "fitness": rec.fitness,
+        "accepted": rec.accepted,
+    }
     with ctx.step("denoise (bilateral filter)"):
         clean = ctx.stage("denoise")(rec.cloud)
         write_cloud(ctx.path("model_denoised.ply"), clean)
     with ctx.step("seams (edge intensity)"):
         extraction = ctx.stage("seam")(clean)
     if not extraction.seams:
-        raise JobError("no weld seam was found on the scanned part",
-                       "check the scan covers the joint; lower [stages.seam.settings] t or min_seam_length")
+        raise JobError(
+            "no weld seam was found on the scanned part",
+            "check the scan covers the joint; lower [stages.seam.settings] t or min_seam_length",
+        )
     with ctx.step("weld path (torch frames + slerp)"):
         path = ctx.stage("path")(extraction.seams, frame="base")
     gt = ground_truth(ctx)

@@ -13,7 +13,9 @@ def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, f
     if gt:
         for i, (_, s) in enumerate(gt):
             g = s.points * 1000
-            ax.plot(g[:, a], g[:, b], "--", color="tab:green", lw=1.2, label="ground truth" if i == 0 else None)
+            ax.plot(
+                g[:, a], g[:, b], "--", color="tab:green", lw=1.2, label="ground truth" if i == 0 else None
+            )
     for i, seam in enumerate(path.seams):
         q = seam.points * 1000
         ax.plot(q[:, a], q[:, b], "-", color="tab:red", lw=1.6, label="seam found" if i == 0 else None)
@@ -21,8 +23,17 @@ def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, f
         o = T[:, :3, 3] * 1000
         for axis, color in ((0, "tab:orange"), (2, "tab:blue")):
             d = T[:, :3, axis] * 8
-            ax.quiver(o[:, a], o[:, b], d[:, a], d[:, b], color=color, angles="xy", scale_units="xy", scale=1,
-                      width=0.003)
+            ax.quiver(
+                o[:, a],
+                o[:, b],
+                d[:, a],
+                d[:, b],
+                color=color,
+                angles="xy",
+                scale_units="xy",
+                scale=1,
+                width=0.003,
+            )
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("xyz"[a] + " [mm]")
     ax.set_ylabel("xyz"[b] + " [mm]")
@@ -63,20 +74,39 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt) -> None:
     lines.append(f"captures        {len(scans)}  (hand-eye: {ctx.figures.get('hand_eye_source')})")
     lines.append(f"model           {len(rec.cloud)} points, denoised {len(clean)} points")
     if len(rec.fitness):
-        lines.append(f"ICP fitness     {np.mean(rec.fitness_before):.3f} -> {np.mean(rec.fitness):.3f} (mean over views)")
+        lines.append(
+            f"ICP fitness     {np.mean(rec.fitness_before):.3f} -> {np.mean(rec.fitness):.3f} "
+            "(mean over views)"
+        )
     lines.append(f"seams found     {len(path.seams)}" + (f" of {m.get('seams_true')} true" if gt else ""))
     for seam in path.seams:
-        lines.append(f"  {seam.id:>4}  {seam.joint:<8} {seam.length * 1000:7.1f} mm  {len(seam.poses)} torch poses"
-                     + ("  closed" if seam.closed else ""))
+        lines.append(
+            f"  {seam.id:>4}  {seam.joint:<8} {seam.length * 1000:7.1f} mm  {len(seam.poses)} torch poses"
+            + ("  closed" if seam.closed else "")
+        )
     if gt and "f1" in m:
         lines.append(f"F1 (eq. 21)     {m['f1']['f1']:.3f}")
-        lines.append(f"pose RMSE       {m['translation_rmse_mm']:.2f} mm, {m['rotation_rmse_deg']:.2f} deg (eq. 22)")
-    timings = ", ".join(f"{k.split(' (')[0]} {v:.2f}s" for k, v in ctx.timings.items() if not k.startswith("open"))
+        lines.append(
+            f"pose RMSE       {m['translation_rmse_mm']:.2f} mm, {m['rotation_rmse_deg']:.2f} deg (eq. 22)"
+        )
+    timings = ", ".join(
+        f"{k.split(' (')[0]} {v:.2f}s" for k, v in ctx.timings.items() if not k.startswith("open")
+    )
     lines.append(f"timings         {timings}")
     lines.append("")
     lines.append("files           weld_path.json, model.ply, model_denoised.ply, programs/, report/report.md")
     summary = "\n".join(lines) + "\n"
     ctx.write_text("summary.txt", summary)
-    md = ["# Scan-and-plan report", "", "```", summary.rstrip(), "```", "",
-          "![seams and torch frames](seams.png)", "", "![ICP fitness per view](fitness.png)", ""]
+    md = [
+        "# Scan-and-plan report",
+        "",
+        "```",
+        summary.rstrip(),
+        "```",
+        "",
+        "![seams and torch frames](seams.png)",
+        "",
+        "![ICP fitness per view](fitness.png)",
+        "",
+    ]
     ctx.write_text("report/report.md", "\n".join(md))

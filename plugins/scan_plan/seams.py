@@ -781,8 +781,16 @@ def chain_seams(
         pieces.append(piece)
     if max_gap > 0 and refine:
         pieces = bridge_pieces(
-            P, N, tree, pieces, max_gap=max_gap, max_angle=max_gap_angle, spacing=spacing,
-            side_radius=side_radius, min_crease_angle=min_crease_angle, approach_radius=approach_radius,
+            P,
+            N,
+            tree,
+            pieces,
+            max_gap=max_gap,
+            max_angle=max_gap_angle,
+            spacing=spacing,
+            side_radius=side_radius,
+            min_crease_angle=min_crease_angle,
+            approach_radius=approach_radius,
         )
     window = max(int(smooth_window), int(round(smooth_length / spacing)) | 1)
     seams: list[SeamPolyline] = []

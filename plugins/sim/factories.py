@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim import devices as d
 from weldcell.hal.sim.flange import flange_for
@@ -33,9 +32,17 @@ def robot(settings, ctx) -> d.SimRobot:
     q_start = None
     if settings.start_xyz is not None:
         q_start = model.ik(T_from_rpy(settings.start_rpy, settings.start_xyz), model.home)
-    return d.SimRobot(model, w, T_world_base=w.T_world(ctx.mount.parent) @ ctx.T_parent_device, name=ctx.role,
-                      gate=SafetyGate(ctx.safety, model=model), motion=settings, dry_run=ctx.dry_run,
-                      q_start=q_start, flange=flange_for(model.name) if settings.flange_geometry else None)
+    return d.SimRobot(
+        model,
+        w,
+        T_world_base=w.T_world(ctx.mount.parent) @ ctx.T_parent_device,
+        name=ctx.role,
+        gate=SafetyGate(ctx.safety, model=model),
+        motion=settings,
+        dry_run=ctx.dry_run,
+        q_start=q_start,
+        flange=flange_for(model.name) if settings.flange_geometry else None,
+    )
 
 
 def camera(settings, ctx) -> d.SimDepthCamera:
@@ -44,11 +51,21 @@ def camera(settings, ctx) -> d.SimDepthCamera:
         rng = np.random.default_rng(ctx.seed + 17)
         axis = rng.normal(size=3)
         direction = rng.normal(size=3)
-        dT = T_from_rotvec(axis / np.linalg.norm(axis) * settings.mount_error_angle,
-                           direction / np.linalg.norm(direction) * settings.mount_error)
+        dT = T_from_rotvec(
+            axis / np.linalg.norm(axis) * settings.mount_error_angle,
+            direction / np.linalg.norm(direction) * settings.mount_error,
+        )
         T_true = T_true @ dT
-    cam = d.SimDepthCamera(world(ctx), settings.preset, T_true, parent=ctx.mount.parent, name=ctx.role,
-                           noise=settings.noise, decimation=settings.decimation, seed=ctx.seed + 1)
+    cam = d.SimDepthCamera(
+        world(ctx),
+        settings.preset,
+        T_true,
+        parent=ctx.mount.parent,
+        name=ctx.role,
+        noise=settings.noise,
+        decimation=settings.decimation,
+        seed=ctx.seed + 1,
+    )
     if settings.stop_after is not None:
         _stop_after(cam, settings.stop_after)
     return cam
@@ -68,14 +85,27 @@ def _stop_after(cam: d.SimDepthCamera, n: int) -> None:
 
 
 def gesture(settings, ctx) -> d.SimGestureSensor:
-    return d.SimGestureSensor(world(ctx), load_script(settings.script), rate=settings.rate, name=ctx.role,
-                              seed=ctx.seed + 2, disconnect_after=settings.disconnect_after)
+    return d.SimGestureSensor(
+        world(ctx),
+        load_script(settings.script),
+        rate=settings.rate,
+        name=ctx.role,
+        seed=ctx.seed + 2,
+        disconnect_after=settings.disconnect_after,
+    )
 
 
 def displacement(settings, ctx) -> d.SimDisplacementSensor:
-    return d.SimDisplacementSensor(world(ctx), ctx.T_parent_device, parent=ctx.mount.parent, name=ctx.role,
-                                   min_range=settings.min_range, max_range=settings.max_range,
-                                   noise=settings.noise, seed=ctx.seed + 3)
+    return d.SimDisplacementSensor(
+        world(ctx),
+        ctx.T_parent_device,
+        parent=ctx.mount.parent,
+        name=ctx.role,
+        min_range=settings.min_range,
+        max_range=settings.max_range,
+        noise=settings.noise,
+        seed=ctx.seed + 3,
+    )
 
 
 def projector(settings, ctx) -> d.SimProjector:
@@ -83,14 +113,26 @@ def projector(settings, ctx) -> d.SimProjector:
 
 
 def imu(settings, ctx) -> d.SimImu:
-    return d.SimImu(world(ctx), parent=ctx.mount.parent, T_parent_imu=ctx.T_parent_device, name=ctx.role,
-                    accel_noise=settings.accel_noise, gyro_noise=settings.gyro_noise, seed=ctx.seed + 4)
+    return d.SimImu(
+        world(ctx),
+        parent=ctx.mount.parent,
+        T_parent_imu=ctx.T_parent_device,
+        name=ctx.role,
+        accel_noise=settings.accel_noise,
+        gyro_noise=settings.gyro_noise,
+        seed=ctx.seed + 4,
+    )
 
 
 def gnss(settings, ctx) -> d.SimGnss:
-    return d.SimGnss(world(ctx), parent=ctx.mount.parent, name=ctx.role,
-                     origin=(settings.latitude, settings.longitude, settings.altitude), sigma=settings.sigma,
-                     seed=ctx.seed + 5)
+    return d.SimGnss(
+        world(ctx),
+        parent=ctx.mount.parent,
+        name=ctx.role,
+        origin=(settings.latitude, settings.longitude, settings.altitude),
+        sigma=settings.sigma,
+        seed=ctx.seed + 5,
+    )
 
 
 def probe(settings) -> str:
@@ -112,10 +154,16 @@ def check_sim_section(loaded) -> list[tuple[tuple[str, ...], str]]:
             continue
         for name in w.params:
             if name not in valid:
-                problems.append(((*key, "params", name), f"'{w.kind}' has no parameter '{name}'; its parameters "
-                                                         f"are: {', '.join(valid)}"))
+                problems.append(
+                    (
+                        (*key, "params", name),
+                        f"'{w.kind}' has no parameter '{name}'; its parameters are: {', '.join(valid)}",
+                    )
+                )
     if uses_sim and not loaded.profile.sim.workpieces and loaded.profile.job.name in ("scan-and-plan",):
-        problems.append((("sim", "workpieces"), "the simulated cell has no workpiece to scan; add [[sim.workpieces]]"))
+        problems.append(
+            (("sim", "workpieces"), "the simulated cell has no workpiece to scan; add [[sim.workpieces]]")
+        )
     gesture = loaded.profile.devices.get("gesture")
     if gesture is not None and gesture.plugin == "gesture.sim":
         try:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Literal
 
 from pydantic import Field
-
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Frequency, Length
@@ -19,14 +18,16 @@ class SimRobotSettings(RobotMotionSettings):
 
     model: RobotModelName = Field("ur5", description="which robot model (docs/robot-models.md)")
     start_xyz: tuple[Length, Length, Length] | None = Field(
-        None, description="flange position to start at, in the robot base frame [m]; default: the model's home"
+        None,
+        description="flange position to start at, in the robot base frame [m]; default: the model's home",
     )
     start_rpy: tuple[Angle, Angle, Angle] = Field(
         (3.14159265, 0.0, 0.0), description="flange orientation to start at (with start_xyz) [rad]"
     )
     flange_geometry: bool = Field(
-        True, description="put the ISO 9409-1 flange and the last link into the depth cameras' scene (they "
-        "move with the robot; hand-eye calibration scans them)"
+        True,
+        description="put the ISO 9409-1 flange and the last link into the depth cameras' scene (they "
+        "move with the robot; hand-eye calibration scans them)",
     )
 
 
@@ -37,10 +38,14 @@ class SimCameraSettings(Settings):
     noise: bool = Field(True, description="apply the model's depth noise and dropouts")
     decimation: int = Field(1, ge=1, le=8, description="keep every n-th pixel row and column")
     mount_error: Length = Field(
-        0.0, ge=0, description="the true mount differs from the profile's mount by this much (a hand-eye error) [m]"
+        0.0,
+        ge=0,
+        description="the true mount differs from the profile's mount by this much (a hand-eye error) [m]",
     )
     mount_error_angle: Angle = Field(0.0, ge=0, description="rotation part of the mount error [rad]")
-    stop_after: int | None = Field(None, ge=0, description="stop delivering frames after this many (fault tests)")
+    stop_after: int | None = Field(
+        None, ge=0, description="stop delivering frames after this many (fault tests)"
+    )
 
 
 class SimGestureSettings(Settings):

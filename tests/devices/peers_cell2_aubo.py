@@ -99,8 +99,9 @@ class AuboSim:
                 q0 = self._q_last()
                 start = self.T_ctrl(q0)
                 q = q0
-                for T in interpolate_poses(start, T_flange @ T_from_rpy(o[3:], o[:3]), np.linspace(0, 1,
-                                                                                                   6))[1:]:
+                for T in interpolate_poses(start, T_flange @ T_from_rpy(o[3:], o[:3]), np.linspace(0, 1, 6))[
+                    1:
+                ]:
                     q = self.model.ik(T @ np.linalg.inv(T_from_rpy(o[3:], o[:3])), q)
                 dist = float(np.linalg.norm(start[:3, 3] - p[:3]))
                 self._enqueue(q, dist / max(params["v"], 1e-6))
@@ -284,7 +285,7 @@ class AuboServer:
                     n = struct.unpack(">I", buf[4:8])[0]
                     if len(buf) < 8 + n:
                         break
-                    body, buf = buf[8:8 + n], buf[8 + n:]
+                    body, buf = buf[8 : 8 + n], buf[8 + n :]
                     if body.startswith(b"__login__"):
                         c.sendall(_frame({"jsonrpc": "2.0", "result": 0}))
                         continue
@@ -303,8 +304,11 @@ class AuboServer:
                     try:
                         res = {"id": msg["id"], "jsonrpc": "2.0", "result": self._reply(msg)}
                     except KeyError as e:
-                        res = {"id": msg["id"], "jsonrpc": "2.0",
-                               "error": {"code": -32601, "message": f"Method not found: {e}"}}
+                        res = {
+                            "id": msg["id"],
+                            "jsonrpc": "2.0",
+                            "error": {"code": -32601, "message": f"Method not found: {e}"},
+                        }
                     c.sendall(_frame(res))
         except OSError:
             return

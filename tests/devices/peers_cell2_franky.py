@@ -24,8 +24,9 @@ from weldcell.hal.sim.kinematics import get_model
 from weldcell.sdk.geometry import T_from_rotvec, invert
 
 #: Franka hand as NE (Desk default when the gripper is configured): 45 deg about z, 0.1034 m along z
-F_T_NE_HAND = np.array([[0.7071068, 0.7071068, 0, 0], [-0.7071068, 0.7071068, 0, 0], [0, 0, 1, 0.1034],
-                        [0, 0, 0, 1.0]])
+F_T_NE_HAND = np.array(
+    [[0.7071068, 0.7071068, 0, 0], [-0.7071068, 0.7071068, 0, 0], [0, 0, 1, 0.1034], [0, 0, 0, 1.0]]
+)
 
 
 @dataclass
@@ -62,10 +63,22 @@ class FrankaWorld:
         if self.q is None:
             self.q = self.model.home.copy()
 
-    def robot(self, fci_hostname: str, relative_dynamics_factor=1.0, default_torque_threshold: float = 20.0,
-              default_force_threshold: float = 30.0, **kwargs) -> FakeFrankyRobot:
-        return FakeFrankyRobot(fci_hostname, relative_dynamics_factor, default_torque_threshold,
-                               default_force_threshold, world=self, **kwargs)
+    def robot(
+        self,
+        fci_hostname: str,
+        relative_dynamics_factor=1.0,
+        default_torque_threshold: float = 20.0,
+        default_force_threshold: float = 30.0,
+        **kwargs,
+    ) -> FakeFrankyRobot:
+        return FakeFrankyRobot(
+            fci_hostname,
+            relative_dynamics_factor,
+            default_torque_threshold,
+            default_force_threshold,
+            world=self,
+            **kwargs,
+        )
 
     def reflex(self, what: str = "cartesian_reflex") -> None:
         """What the control unit does on a collision: abort, enter Reflex, keep the error until recovery."""
@@ -84,9 +97,16 @@ class FakeFrankyRobot:
     control_rate = 0.001
     degrees_of_freedom = 7
 
-    def __init__(self, fci_hostname: str, relative_dynamics_factor=1.0,
-                 default_torque_threshold: float = 20.0,
-                 default_force_threshold: float = 30.0, *, world: FrankaWorld, **kwargs) -> None:
+    def __init__(
+        self,
+        fci_hostname: str,
+        relative_dynamics_factor=1.0,
+        default_torque_threshold: float = 20.0,
+        default_force_threshold: float = 30.0,
+        *,
+        world: FrankaWorld,
+        **kwargs,
+    ) -> None:
         if not world.reachable:
             raise franky.NetworkException("libfranka: Connection to FCI refused.")
         self._w = world
@@ -117,10 +137,17 @@ class FakeFrankyRobot:
     def state(self) -> _State:
         self._check_link()
         w = self._w
-        return _State(q=w.q.copy(), dq=np.zeros(7), O_T_EE=franky.Affine(w.flange() @ w.F_T_EE),
-                      F_T_EE=franky.Affine(w.F_T_EE), F_T_NE=franky.Affine(w.F_T_NE),
-                      NE_T_EE=franky.Affine(w.NE_T_EE), robot_mode=w.mode, current_errors=w.errors,
-                      last_motion_errors=w.errors)
+        return _State(
+            q=w.q.copy(),
+            dq=np.zeros(7),
+            O_T_EE=franky.Affine(w.flange() @ w.F_T_EE),
+            F_T_EE=franky.Affine(w.F_T_EE),
+            F_T_NE=franky.Affine(w.F_T_NE),
+            NE_T_EE=franky.Affine(w.NE_T_EE),
+            robot_mode=w.mode,
+            current_errors=w.errors,
+            last_motion_errors=w.errors,
+        )
 
     @property
     def current_joint_state(self) -> franky.JointState:
@@ -135,8 +162,9 @@ class FakeFrankyRobot:
         return bool(self._w.errors)
 
     # -- commands ---------------------------------------------------------------------------------
-    def move(self, motion, asynchronous: bool = False, limit_rate: bool = False,
-             cutoff_frequency: float = 100.0) -> None:
+    def move(
+        self, motion, asynchronous: bool = False, limit_rate: bool = False, cutoff_frequency: float = 100.0
+    ) -> None:
         self._check_link()
         w = self._w
         if w.mode == franky.RobotMode.Reflex:

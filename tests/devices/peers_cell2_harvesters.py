@@ -25,11 +25,13 @@ import numpy as np
 try:
     from genicam.gentl import GenericException, TimeoutException
 except Exception:  # pragma: no cover - genicam ships with harvesters
+
     class GenericException(Exception):  # type: ignore[no-redef]
         pass
 
     class TimeoutException(GenericException):  # type: ignore[no-redef]
         pass
+
 
 COMPONENT_IDS = {"Intensity": 1, "Range": 4, "Confidence": 7, "Normal": 10, "Event": 11, "ColorCamera": 12}
 
@@ -53,9 +55,10 @@ class SimPhoXi:
 
     def render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Organised XYZ (H, W, 3) mm (zeros where nothing is measured), normals, Mono12 texture."""
-        v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
-        d = np.stack([(u - self.cu) / self.f, (v - self.cv) / (self.f * self.aspect), np.ones_like(u)],
-                     axis=2)
+        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
+        d = np.stack(
+            [(u - self.cu) / self.f, (v - self.cv) / (self.f * self.aspect), np.ones_like(u)], axis=2
+        )
         # tilted plane z = plane_z + 0.3 x
         t_plane = self.plane_z / (d[..., 2] - 0.3 * d[..., 0])
         t = t_plane.copy()
@@ -63,7 +66,7 @@ class SimPhoXi:
         c = np.asarray(self.sphere_c)
         dd = np.einsum("hwk,hwk->hw", d, d)
         b = np.einsum("hwk,k->hw", d, c)
-        disc = b * b - dd * (c @ c - self.sphere_r ** 2)
+        disc = b * b - dd * (c @ c - self.sphere_r**2)
         hit = disc > 0
         ts = np.where(hit, (b - np.sqrt(np.where(hit, disc, 0.0))) / dd, np.inf)
         closer = hit & (ts < t)
@@ -113,8 +116,14 @@ class FakeNodeMap:
         sim = acq.sim
         self._acq = acq
         self._selected = "Intensity"
-        self.enabled = {"Intensity": True, "Range": True, "Confidence": False, "Normal": True, "Event": False,
-                        "ColorCamera": False}
+        self.enabled = {
+            "Intensity": True,
+            "Range": True,
+            "Confidence": False,
+            "Normal": True,
+            "Event": False,
+            "ColorCamera": False,
+        }
         self.Width = _Node(sim.width)
         self.Height = _Node(sim.height)
         self.TriggerSelector = _Node("FrameStart", choices=("FrameStart",))
@@ -126,8 +135,10 @@ class FakeNodeMap:
         self.Scan3dPrincipalPointU = _Node(sim.cu)
         self.Scan3dPrincipalPointV = _Node(sim.cv)
         self.ComponentSelector = _Node(on_set=self._select, on_get=lambda: self._selected)
-        self.ComponentEnable = _Node(on_set=lambda v: self.enabled.__setitem__(self._selected, bool(v)),
-                                     on_get=lambda: self.enabled[self._selected])
+        self.ComponentEnable = _Node(
+            on_set=lambda v: self.enabled.__setitem__(self._selected, bool(v)),
+            on_get=lambda: self.enabled[self._selected],
+        )
         self.ComponentIDValue = _Node(on_get=lambda: COMPONENT_IDS[self._selected])
         self.TriggerSoftware = _Command(acq._trigger)
 
@@ -215,12 +226,17 @@ class FakeImageAcquirer:
             rng = _Component(xyz[..., 2].ravel().copy(), self.sim.width, self.sim.height, "Coord3D_C32f")
         else:
             rng = _Component(xyz.ravel().copy(), self.sim.width, self.sim.height, "Coord3D_ABC32f")
-        parts = {"Intensity": _Component(tex.ravel().copy(), self.sim.width, self.sim.height, "Mono12"),
-                 "Range": rng,
-                 "Confidence": _Component(np.where(xyz[..., 2] > 0, 255, 0).astype(np.uint8).ravel(),
-                                          self.sim.width, self.sim.height, "Confidence8"),
-                 "Normal": _Component(normals.ravel().copy(), self.sim.width, self.sim.height,
-                                      "Coord3D_ABC32f")}
+        parts = {
+            "Intensity": _Component(tex.ravel().copy(), self.sim.width, self.sim.height, "Mono12"),
+            "Range": rng,
+            "Confidence": _Component(
+                np.where(xyz[..., 2] > 0, 255, 0).astype(np.uint8).ravel(),
+                self.sim.width,
+                self.sim.height,
+                "Confidence8",
+            ),
+            "Normal": _Component(normals.ravel().copy(), self.sim.width, self.sim.height, "Coord3D_ABC32f"),
+        }
         comps = [parts[n] for n in sorted(parts, key=COMPONENT_IDS.get) if nm.enabled.get(n)]
         self.sim.scans += 1
         return FakeBuffer(comps, time.time_ns())
@@ -257,12 +273,27 @@ class FakeHarvester:
         self.files.append(file_path)
 
     def update(self) -> None:
-        self.device_info_list = [] if not self.files else [
-            _DeviceInfo({"id_": f"PhotoneoTL_DEV_{s.serial}", "serial_number": s.serial,
-                         "model": "PhoXi3DScanner",
-                         "vendor": "Photoneo", "display_name": f"PhoXi {s.serial}", "user_defined_name": "",
-                         "access_status": 1, "tl_type": "Custom", "version": "1.13.0"})
-            for s in self._system.scanners if not s.unplugged]
+        self.device_info_list = (
+            []
+            if not self.files
+            else [
+                _DeviceInfo(
+                    {
+                        "id_": f"PhotoneoTL_DEV_{s.serial}",
+                        "serial_number": s.serial,
+                        "model": "PhoXi3DScanner",
+                        "vendor": "Photoneo",
+                        "display_name": f"PhoXi {s.serial}",
+                        "user_defined_name": "",
+                        "access_status": 1,
+                        "tl_type": "Custom",
+                        "version": "1.13.0",
+                    }
+                )
+                for s in self._system.scanners
+                if not s.unplugged
+            ]
+        )
 
     def create(self, search_key=None, *, config=None) -> FakeImageAcquirer:
         if isinstance(search_key, int):

@@ -24,9 +24,9 @@ needs_data = pytest.mark.skipif(not IMAGES.is_dir(), reason=f"OpenCV ArUco photo
 
 
 def _photos(**kw) -> ArucoCameraSettings:
-    return ArucoCameraSettings(source=str(IMAGES / "img_%02d.jpg"), backend="images",
-                               intrinsics_file=str(YML),
-                               **kw)
+    return ArucoCameraSettings(
+        source=str(IMAGES / "img_%02d.jpg"), backend="images", intrinsics_file=str(YML), **kw
+    )
 
 
 @needs_data
@@ -44,10 +44,18 @@ class TestArucoCameraOnRealPhotos(TactileCameraConformance):
 def test_intrinsics_yml_is_read_exactly():
     k = read_opencv_intrinsics(YML)
     assert (k.width, k.height) == (640, 480)
-    assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx((452.51072219637672, 456.76707935146891,
-                                                       317.70297317353277, 277.75155919135995))
-    assert k.dist == pytest.approx((0.12136925618707872, -1.0854664722560681, 1.1786843796668460e-04,
-                                    -4.6240686046485508e-04, 2.9542589406810080))
+    assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx(
+        (452.51072219637672, 456.76707935146891, 317.70297317353277, 277.75155919135995)
+    )
+    assert k.dist == pytest.approx(
+        (
+            0.12136925618707872,
+            -1.0854664722560681,
+            1.1786843796668460e-04,
+            -4.6240686046485508e-04,
+            2.9542589406810080,
+        )
+    )
 
 
 @needs_data

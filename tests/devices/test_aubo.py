@@ -12,7 +12,6 @@ import numpy as np
 import pyaubo_sdk
 import pytest
 from peers_cell2_aubo import PARAMS, AuboSim, FakeRpcClient, peer_request
-from peers_cell2_conformance import RobotConformanceFixed, lifecycle
 from weldcell.hal.lifecycle import State
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim.kinematics import get_model
@@ -22,20 +21,34 @@ from weldcell.plugins.aubo.settings import AuboSettings
 from weldcell.sdk.cell import SafetyLimits
 from weldcell.sdk.errors import DeviceError, SafetyError
 from weldcell.sdk.geometry import T_from_rpy
+from weldcell.testing.conformance import RobotConformance
 
 PEER = Path(__file__).resolve().parent / "peers_cell2_aubo.py"
 
 
 def test_fake_mirrors_pyaubo_sdk_names():
-    classes = {"MotionControl": pyaubo_sdk.MotionControl, "RobotState": pyaubo_sdk.RobotState,
-               "RobotConfig": pyaubo_sdk.RobotConfig, "RobotManage": pyaubo_sdk.RobotManage}
+    classes = {
+        "MotionControl": pyaubo_sdk.MotionControl,
+        "RobotState": pyaubo_sdk.RobotState,
+        "RobotConfig": pyaubo_sdk.RobotConfig,
+        "RobotManage": pyaubo_sdk.RobotManage,
+    }
     for key, names in PARAMS.items():
         cls, meth = key.split(".")
         assert meth in dir(classes[cls]), f"pyaubo_sdk.{key} does not exist"
         n_args = classes[cls].__dict__[meth].__doc__.split("->")[0].count("arg")
         assert n_args == len(names), f"{key}: SDK takes {n_args} args, peer maps {names}"
-    for meth in ("connect", "login", "logout", "disconnect", "hasConnected", "hasLogined", "getRobotNames",
-                 "getRobotInterface", "setRequestTimeout"):
+    for meth in (
+        "connect",
+        "login",
+        "logout",
+        "disconnect",
+        "hasConnected",
+        "hasLogined",
+        "getRobotNames",
+        "getRobotInterface",
+        "setRequestTimeout",
+    ):
         assert meth in dir(pyaubo_sdk.RpcClient) and hasattr(FakeRpcClient, meth)
 
 
@@ -65,7 +78,7 @@ def _tcp_robot(port: int, **kw) -> AuboRobot:
     return AuboRobot(s, name="aubo", gate=_gate())
 
 
-class TestAuboOverJsonRpc(RobotConformanceFixed):
+class TestAuboOverJsonRpc(RobotConformance):
     @pytest.fixture
     def device(self, fresh_peer):
         return _tcp_robot(fresh_peer)
@@ -101,8 +114,14 @@ def test_sdk_wire_calls_and_flange_mapping(fresh_peer, monkeypatch):
         np.testing.assert_allclose(r.state().T_base_tcp[:3, 3] - p0, [0, 0.002, 0], atol=1e-6)
         r.stop()
     calls = peer_request(fresh_peer, "__peer__.state")["log"]
-    for name in ("MotionControl.moveLine", "MotionControl.moveJoint", "MotionControl.getExecId",
-                 "MotionControl.speedLine", "MotionControl.stopLine", "RobotConfig.getTcpOffset"):
+    for name in (
+        "MotionControl.moveLine",
+        "MotionControl.moveJoint",
+        "MotionControl.getExecId",
+        "MotionControl.speedLine",
+        "MotionControl.stopLine",
+        "RobotConfig.getTcpOffset",
+    ):
         assert name in calls
 
 
@@ -115,7 +134,7 @@ def test_protective_stop_faults_and_recover_unlocks(fresh_peer):
         goal[2, 3] += 0.01
         with pytest.raises(DeviceError, match="refused|ProtectiveStop"):
             r.move_linear(goal)
-        assert lifecycle(r) is State.ERROR
+        assert r.lifecycle is State.ERROR
         r.recover()
         r.configure()
         r.activate()
@@ -150,7 +169,7 @@ def _fake_robot(sim: AuboSim, monkeypatch, **kw) -> AuboRobot:
     return AuboRobot(s, name="aubo", gate=_gate(), rpc_factory=lambda: FakeRpcClient(sim))
 
 
-class TestAuboWithSdkFake(RobotConformanceFixed):
+class TestAuboWithSdkFake(RobotConformance):
     @pytest.fixture
     def device(self, monkeypatch):
         return _fake_robot(AuboSim(max_motion_time=0.02), monkeypatch)

@@ -7,7 +7,6 @@ import re
 import franky
 import numpy as np
 import pytest
-from peers_cell2_conformance import RobotConformanceFixed, lifecycle
 from peers_cell2_franky import FakeFrankyRobot, FrankaWorld
 from weldcell.hal.lifecycle import State
 from weldcell.hal.safety import SafetyGate
@@ -18,12 +17,13 @@ from weldcell.plugins.franka.settings import FrankaSettings
 from weldcell.sdk.cell import SafetyLimits
 from weldcell.sdk.errors import DeviceError, SafetyError
 from weldcell.sdk.geometry import T_from_rpy, invert
+from weldcell.testing.conformance import RobotConformance
 
 
 def _doc_params(fn) -> list[str]:
     """Parameter names of the first overload in a pybind11 docstring."""
     line = next(ln for ln in fn.__doc__.splitlines() if "(" in ln and "self" in ln)
-    inner = line[line.index("(") + 1:line.rindex(")")]
+    inner = line[line.index("(") + 1 : line.rindex(")")]
     return [p.split(":")[0].strip() for p in re.split(r",\s*(?![^\[]*\])", inner) if p.strip()][1:]
 
 
@@ -38,8 +38,14 @@ def test_fake_mirrors_frankys_robot_signatures():
     want_init = _doc_params(real.__init__)[:4]
     got_init = list(inspect.signature(FakeFrankyRobot.__init__).parameters)[1:5]
     assert got_init == want_init
-    for prop in ("state", "has_errors", "current_joint_state", "current_cartesian_state",
-                 "relative_dynamics_factor", "fci_hostname"):
+    for prop in (
+        "state",
+        "has_errors",
+        "current_joint_state",
+        "current_cartesian_state",
+        "relative_dynamics_factor",
+        "fci_hostname",
+    ):
         assert hasattr(real, prop) and isinstance(getattr(FakeFrankyRobot, prop), property)
 
 
@@ -50,11 +56,15 @@ def world():
 
 def _robot(world, **kw) -> FrankaRobot:
     s = FrankaSettings(host="172.16.0.2", **kw)
-    return FrankaRobot(s, name="franka", gate=SafetyGate(SafetyLimits(), model=get_model("franka-panda")),
-                       robot_factory=world.robot)
+    return FrankaRobot(
+        s,
+        name="franka",
+        gate=SafetyGate(SafetyLimits(), model=get_model("franka-panda")),
+        robot_factory=world.robot,
+    )
 
 
-class TestFrankaConformance(RobotConformanceFixed):
+class TestFrankaConformance(RobotConformance):
     @pytest.fixture
     def device(self, world):
         return _robot(world)
@@ -134,17 +144,17 @@ def test_reflex_error_state_and_recover_from_errors(world):
         world.reflex("cartesian_reflex_flag")
         with pytest.raises(DeviceError, match="reflex"):
             r.state()
-        assert lifecycle(r) is State.ERROR and "reflex" in r.health().message
+        assert r.lifecycle is State.ERROR and "reflex" in r.health().message
         with pytest.raises(DeviceError):
             r.move_linear(np.eye(4))  # not active: refused without touching the robot
         world.fail_recovery = True
         with pytest.raises(DeviceError, match="recover"):
             r.recover()
-        assert lifecycle(r) is State.ERROR
+        assert r.lifecycle is State.ERROR
         world.fail_recovery = False
         r.recover()
         assert world.recover_calls == 2 and world.errors == ""
-        assert lifecycle(r) is State.UNCONFIGURED
+        assert r.lifecycle is State.UNCONFIGURED
         r.configure()
         r.activate()
         assert np.all(np.isfinite(r.state().q))
@@ -165,7 +175,7 @@ def test_reflex_during_a_motion_faults(world, monkeypatch):
         monkeypatch.setattr(FakeFrankyRobot, "move", collide)
         with pytest.raises(DeviceError, match="ControlException"):
             r.move_linear(goal)
-        assert lifecycle(r) is State.ERROR
+        assert r.lifecycle is State.ERROR
 
 
 def test_connection_refused_and_probe(world, weldcell_pm):

@@ -26,8 +26,9 @@ needs_sample = pytest.mark.skipif(not SAMPLE.is_dir(), reason=f"real PhoXi scans
 def gentl(tmp_path):
     cti = tmp_path / "photoneo.cti"
     cti.write_bytes(b"\x7fELF fake producer")
-    return FakeGenTLSystem(cti=cti, scanners=[SimPhoXi(serial="TER-008"), SimPhoXi(serial="DVJ-104", width=40,
-                                                                                   height=30)])
+    return FakeGenTLSystem(
+        cti=cti, scanners=[SimPhoXi(serial="TER-008"), SimPhoXi(serial="DVJ-104", width=40, height=30)]
+    )
 
 
 def _gentl_cam(system, **kw) -> PhoXiGenTLCamera:
@@ -47,7 +48,9 @@ class TestPhoXiGenTLConformance(DepthCameraConformance):
 
             def _replug():
                 gentl.scanners[0].unplugged = False
+
             dev._replug = _replug  # noqa: SLF001 - test hook
+
         return _break
 
     def test_error_state_and_recovery(self, device, break_device, gentl):
@@ -146,8 +149,9 @@ class TestPhoXiFileConformance(DepthCameraConformance):
 @needs_sample
 def test_file_mode_replays_the_real_scans_exactly():
     files = sorted(SAMPLE.glob("*_tool.ply"))
-    cam = PhoXiFileCamera(PhoXiSettings(mode="file", files=str(SAMPLE / "*_tool.ply"), loop=True),
-                          name="phoxi")
+    cam = PhoXiFileCamera(
+        PhoXiSettings(mode="file", files=str(SAMPLE / "*_tool.ply"), loop=True), name="phoxi"
+    )
     with cam:
         frames = [cam.capture() for _ in range(len(files) + 1)]
     assert [Path(f.meta["file"]).name for f in frames[:-1]] == [p.name for p in files]

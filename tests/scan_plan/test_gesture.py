@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
 from weldcell.hal.readings import HandsFrame, InteractionBox
 from weldcell.hal.sim.hands import BOX_CENTER, REGION_OFFSET, HandScript, _hand, load_script
 from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings, hand_rotation
@@ -39,8 +38,17 @@ def run(ctl, frames, T=CAM_DOWN):
     return T, cmds
 
 
-@pytest.mark.parametrize("region,axis", [("left", [-1, 0, 0]), ("right", [1, 0, 0]), ("up", [0, 0, 1]),
-                                         ("down", [0, 0, -1]), ("inward", [0, 1, 0]), ("outward", [0, -1, 0])])
+@pytest.mark.parametrize(
+    "region,axis",
+    [
+        ("left", [-1, 0, 0]),
+        ("right", [1, 0, 0]),
+        ("up", [0, 0, 1]),
+        ("down", [0, 0, -1]),
+        ("inward", [0, 1, 0]),
+        ("outward", [0, -1, 0]),
+    ],
+)
 def test_each_region_moves_the_camera_along_its_direction_at_the_set_speed(region, axis):
     ctl = GestureScanController(GestureScanSettings(speed=0.06))
     T, cmds = run(ctl, [frame(i / 60, region) for i in range(120)])
@@ -86,8 +94,10 @@ def test_ok_sign_captures_once_per_sign_and_fist_stops():
     assert sum(c.capture for c in cmds) == 2
     first = next(i for i, c in enumerate(cmds) if c.capture)
     assert first >= 6, "ok must be held ok_hold seconds (debounce)"
-    _, cmds = run(GestureScanController(GestureScanSettings(stop_hold=0.3)),
-                  [frame(i / 60, "home", fist=True) for i in range(30)])
+    _, cmds = run(
+        GestureScanController(GestureScanSettings(stop_hold=0.3)),
+        [frame(i / 60, "home", fist=True) for i in range(30)],
+    )
     stops = [i for i, c in enumerate(cmds) if c.stop]
     assert stops and stops[0] >= 18
 
@@ -118,8 +128,10 @@ def test_real_leap_recording_gives_bounded_smooth_targets():
         pytest.skip(f"recorded data not found at {DATA}")
     leap = pytest.importorskip("weldcell.plugins.leap.playback")
     proto = pytest.importorskip("weldcell.plugins.leap.protocol")
-    frames = [proto.frame_from_json(m, stamp=i / 115.0) for i, m in
-              enumerate(leap.load_recording(DATA / "recordings" / "brian.json"))]
+    frames = [
+        proto.frame_from_json(m, stamp=i / 115.0)
+        for i, m in enumerate(leap.load_recording(DATA / "recordings" / "brian.json"))
+    ]
     ctl = GestureScanController(GestureScanSettings(speed=0.05, max_angular_speed=0.8))
     T, cmds = run(ctl, frames)
     targets = [c.target for c in cmds if c.target is not None]

@@ -35,8 +35,9 @@ class Recorder(Reporter):
             self.events.append(("capture", str(done)))
 
 
-def small_profile(tmp_path: Path, name: str = "small", job: str = "execute = false", camera: str = "",
-                  extra: str = "") -> Path:
+def small_profile(
+    tmp_path: Path, name: str = "small", job: str = "execute = false", camera: str = "", extra: str = ""
+) -> Path:
     """The shipped sim profile at a quarter of the camera resolution, by default without executing the
     path; ``job`` and ``camera`` add settings lines, ``extra`` whole tables."""
     f = tmp_path / f"{name}.toml"
@@ -100,7 +101,7 @@ def test_end_to_end_finds_the_groove_and_writes_programs_and_report(tmp_path):
 
 def test_gesture_sensor_that_drops_mid_scan_is_reconnected_and_captures_are_kept(tmp_path):
     rec = Recorder()
-    profile = small_profile(tmp_path, "drop", extra='[devices.gesture.settings]\ndisconnect_after = 500')
+    profile = small_profile(tmp_path, "drop", extra="[devices.gesture.settings]\ndisconnect_after = 500")
     run_dir, result = run(profile, tmp_path, rec)
     assert result["status"] == "ok" and result["figures"]["seams"] == 1
     kinds = [k for k, _ in rec.events]
@@ -117,7 +118,7 @@ def test_gesture_sensor_that_never_returns_fails_with_resume_hint_and_resume_con
         raise DeviceError("simulated gesture service is still down", "start it")
 
     monkeypatch.setattr(sim_devices.SimGestureSensor, "on_recover", still_down)
-    profile = small_profile(tmp_path, "dead", extra='[devices.gesture.settings]\ndisconnect_after = 400')
+    profile = small_profile(tmp_path, "dead", extra="[devices.gesture.settings]\ndisconnect_after = 400")
     with pytest.raises(JobError) as err:
         run(profile, tmp_path)
     run_dir = only_run_dir(tmp_path)
@@ -164,7 +165,11 @@ def test_unreachable_weld_path_is_refused_before_anything_is_sent(tmp_path, monk
     monkeypatch.setattr(sim_devices.SimRobot, "__init__", keep)
     # the groove runs along x away from the robot, past the 0.76 m reach this cell allows (the seam is
     # scanned from above its near half, which stays within reach)
-    profile = small_profile(tmp_path, "far", job="execute = true\nroi_max = [1.2, 0.4, 0.5]", extra="""
+    profile = small_profile(
+        tmp_path,
+        "far",
+        job="execute = true\nroi_max = [1.2, 0.4, 0.5]",
+        extra="""
 [cell.safety]
 workspace_max = [1.2, 0.6, 0.9]
 max_reach = "760 mm"
@@ -177,7 +182,8 @@ kind = "v-groove-butt"
 params = { length = 0.5, width = 0.15, thickness = 0.012 }
 xyz = [0.72, 0.0, 0.0]
 rpy = [0, 0, 0]
-""")
+""",
+    )
     with pytest.raises(SafetyError) as err:
         run(profile, tmp_path)
     run_dir = only_run_dir(tmp_path)
@@ -191,6 +197,7 @@ rpy = [0, 0, 0]
     (robot,) = robots
     path = WeldPath.from_json(run_dir / "weld_path.json")
     targets = np.concatenate([s.poses[:, :3, 3] for s in path.seams])
+
     def beyond(points):
         out = []
         for p in points:

@@ -76,8 +76,22 @@ def check_groove_path(path: WeldPath) -> None:
 # -------------------------------------------------------------------------------------------- weldcell seam
 def test_seam_finds_the_groove_drops_nan_points_and_writes_programs_and_picture(groove_m, tmp_path):
     out = tmp_path / "path.json"
-    res = cli("seam", groove_m, "-o", out, "--export", "urscript", "--export", "abb-rapid", "--export", "csv",
-              "--standoff", "20 mm", "--report", tmp_path / "report")
+    res = cli(
+        "seam",
+        groove_m,
+        "-o",
+        out,
+        "--export",
+        "urscript",
+        "--export",
+        "abb-rapid",
+        "--export",
+        "csv",
+        "--standoff",
+        "20 mm",
+        "--report",
+        tmp_path / "report",
+    )
     assert res.exit_code == 0, res.output
     assert "dropped 300 invalid points" in res.output
     assert "seams found" in res.output
@@ -115,8 +129,10 @@ def test_seam_refuses_a_cloud_whose_scale_does_not_fit_the_units(groove_m, groov
 
 def test_seam_refuses_empty_and_all_nan_clouds(tmp_path):
     empty = tmp_path / "empty.ply"
-    empty.write_text("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-                     "property float z\nend_header\n")
+    empty.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n"
+    )
     assert_error(cli("seam", empty, "-o", tmp_path / "p.json"), 2, "has no points")
     nan = tmp_path / "nan.ply"
     write_cloud(nan, PointCloud(np.full((1000, 3), np.nan)))
@@ -129,10 +145,15 @@ def test_seam_reports_no_seam_and_bad_options_clearly(groove_m, tmp_path):
     res = cli("seam", groove_m, "-o", tmp_path / "p.json", "--set", "seam.min_seam_length='2 m'")
     assert_error(res, 2, "no weld seam was found", "lower --t")
     assert_error(cli("seam", groove_m, "-o", tmp_path / "p.json", "--t", "5"), 2, "seam.t", "27")
-    assert_error(cli("seam", groove_m, "-o", tmp_path / "p.json", "--set", "seam.bogus=1"), 2, "bogus",
-                 "unknown key")
-    assert_error(cli("seam", groove_m, "-o", tmp_path / "p.json", "--export", "kuka"), 4,
-                 "no exporter named 'kuka'", "export.urscript")
+    assert_error(
+        cli("seam", groove_m, "-o", tmp_path / "p.json", "--set", "seam.bogus=1"), 2, "bogus", "unknown key"
+    )
+    assert_error(
+        cli("seam", groove_m, "-o", tmp_path / "p.json", "--export", "kuka"),
+        4,
+        "no exporter named 'kuka'",
+        "export.urscript",
+    )
 
 
 class FixedLine:
@@ -161,8 +182,15 @@ class FixedLinePlugin:
         class FixedLineSettings(Settings):
             z: float = Field(0.0, description="height of the line [m]")
 
-        register(StageSpec(name="seam.fixed-line", kind="seam", summary="test", settings=FixedLineSettings,
-                           factory=FixedLine))
+        register(
+            StageSpec(
+                name="seam.fixed-line",
+                kind="seam",
+                summary="test",
+                settings=FixedLineSettings,
+                factory=FixedLine,
+            )
+        )
 
 
 def test_seam_uses_the_stage_plugin_and_settings_a_profile_picks(groove_m, tmp_path):
@@ -221,8 +249,9 @@ def write_scans(folder: Path, units: str = "m", drop_pose: int | None = None, **
         write_cloud(folder / r["cloud"], PointCloud(c, frame="camera"))
     if drop_pose is not None:
         del recs[drop_pose]["T_base_flange"]
-    (folder / "scans.json").write_text(json.dumps({"schema": "weldcell/posed-scans@1", "units": units,
-                                                   "scans": recs, **doc}))
+    (folder / "scans.json").write_text(
+        json.dumps({"schema": "weldcell/posed-scans@1", "units": units, "scans": recs, **doc})
+    )
     return truth
 
 
@@ -247,8 +276,16 @@ def test_reconstruct_merges_posed_scans_and_icp_improves_fitness(tmp_path):
 def test_reconstruct_reads_millimetre_scans_and_a_hand_eye_file(tmp_path):
     write_scans(tmp_path / "scans", units="mm")
     he = tmp_path / "handeye.json"
-    he.write_text(json.dumps({"schema": "weldcell/hand-eye@1", "transform": "T_flange_camera",
-                              "T": T_FLANGE_CAMERA.tolist(), "units": "m"}))
+    he.write_text(
+        json.dumps(
+            {
+                "schema": "weldcell/hand-eye@1",
+                "transform": "T_flange_camera",
+                "T": T_FLANGE_CAMERA.tolist(),
+                "units": "m",
+            }
+        )
+    )
     out = tmp_path / "model.ply"
     res = cli("reconstruct", tmp_path / "scans", "-o", out, "--hand-eye", he)
     assert res.exit_code == 0, res.output
@@ -265,8 +302,13 @@ def test_reconstruct_refuses_a_scan_without_pose_and_a_missing_hand_eye(tmp_path
     assert_error(cli("reconstruct", tmp_path / "ok", "-o", tmp_path / "m.ply"), 2, "no hand-eye", "--mount")
     eye_on_base = tmp_path / "eob.json"
     eye_on_base.write_text(json.dumps({"transform": "T_base_camera", "T": np.eye(4).tolist()}))
-    assert_error(cli("reconstruct", tmp_path / "ok", "-o", tmp_path / "m.ply", "--hand-eye", eye_on_base), 2,
-                 "T_base_camera", "eye-in-hand")
-    assert_error(cli("reconstruct", tmp_path, "-o", tmp_path / "m.ply"), 2, "neither scans.json",
-                 "posed-scans@1")
+    assert_error(
+        cli("reconstruct", tmp_path / "ok", "-o", tmp_path / "m.ply", "--hand-eye", eye_on_base),
+        2,
+        "T_base_camera",
+        "eye-in-hand",
+    )
+    assert_error(
+        cli("reconstruct", tmp_path, "-o", tmp_path / "m.ply"), 2, "neither scans.json", "posed-scans@1"
+    )
     assert not (tmp_path / "m.ply").exists()

@@ -102,8 +102,11 @@ def test_travel_direction_follows_a_closed_seam():
     seam = circle_seam()
     path = plan_torch_path(seam, standoff=0.01, rho=0, travel_average=3)
     x = path.poses[:, :3, 0]
-    tangent = np.c_[-np.sin(np.arctan2(seam.points[:, 1], seam.points[:, 0])),
-                    np.cos(np.arctan2(seam.points[:, 1], seam.points[:, 0])), 0 * seam.points[:, 0]]
+    tangent = np.c_[
+        -np.sin(np.arctan2(seam.points[:, 1], seam.points[:, 0])),
+        np.cos(np.arctan2(seam.points[:, 1], seam.points[:, 0])),
+        0 * seam.points[:, 0],
+    ]
     proj = tangent - np.einsum("ij,ij->i", tangent, seam.normals)[:, None] * seam.normals
     proj /= np.linalg.norm(proj, axis=1, keepdims=True)
     assert np.all(np.einsum("ij,ij->i", x, proj) > np.cos(np.deg2rad(3)))

@@ -14,15 +14,28 @@ from weldcell.sdk.hookspecs import hookimpl
 def weldcell_register_stages(register) -> None:
     from weldcell_plugin_example.height_step import HeightStepSeams, HeightStepSettings
 
-    register(StageSpec(name="seam.height-step", kind="seam",
-                       summary="seams where the surface height steps (lap joints), found with a KD-tree",
-                       settings=HeightStepSettings, factory=HeightStepSeams))
+    register(
+        StageSpec(
+            name="seam.height-step",
+            kind="seam",
+            summary="seams where the surface height steps (lap joints), found with a KD-tree",
+            settings=HeightStepSettings,
+            factory=HeightStepSeams,
+        )
+    )
 
 
 @hookimpl
 def weldcell_register_exporters(register) -> None:
     from weldcell_plugin_example.gcode import GcodeSettings, to_gcode
 
-    register(ExporterSpec(name="export.gcode-like", kind="exporter",
-                          summary="G-code-like program (mm, mm/min, torch angles in degrees)",
-                          settings=GcodeSettings, export=to_gcode, suffix=".nc"))
+    register(
+        ExporterSpec(
+            name="export.gcode-like",
+            kind="exporter",
+            summary="G-code-like program (mm, mm/min, torch angles in degrees)",
+            settings=GcodeSettings,
+            export=to_gcode,
+            suffix=".nc",
+        )
+    )

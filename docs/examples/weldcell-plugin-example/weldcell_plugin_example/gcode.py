@@ -40,8 +40,12 @@ def to_gcode(data: dict, settings: GcodeSettings | None = None) -> str:
         first, last = seam.poses[0].copy(), seam.poses[-1].copy()
         first[:3, 3] -= s.retract * first[:3, 2]
         last[:3, 3] -= s.retract * last[:3, 2]
-        lines += [f"( seam {seam.id} {seam.joint} {seam.length * 1000:.1f} mm )",
-                  _move("G0", first, s.decimals), _move("G1", seam.poses[0], s.decimals, s.feed), "M3"]
+        lines += [
+            f"( seam {seam.id} {seam.joint} {seam.length * 1000:.1f} mm )",
+            _move("G0", first, s.decimals),
+            _move("G1", seam.poses[0], s.decimals, s.feed),
+            "M3",
+        ]
         lines += [_move("G1", T, s.decimals, s.feed) for T in seam.poses[1:]]
         lines += ["M5", _move("G0", last, s.decimals)]
     lines.append("M2")
