@@ -81,29 +81,36 @@ class WeldPath:
         if isinstance(data, str | Path):
             where = str(data)
             data = read_json(data)
-        if not isinstance(data, dict) or data.get("schema") != SCHEMA:
-            got = data.get("schema") if isinstance(data, dict) else type(data).__name__
-            raise DataError(
-                f"{where}: schema is {got!r}, expected {SCHEMA!r}",
-                "pass a file written by `weldcell seam` or a scan-and-plan run",
-            )
+        fix = "pass a file written by `weldcell seam` or a scan-and-plan run"
+        if not isinstance(data, dict):
+            raise DataError(f"{where}: expected a JSON object, got {type(data).__name__}", fix)
+        if data.get("schema") != SCHEMA:
+            raise DataError(f"{where}: schema is {data.get('schema')!r}, expected {SCHEMA!r}", fix)
         if data.get("units", "m") != "m":
             raise DataError(
                 f"{where}: units {data.get('units')!r}; weld paths are stored in metres",
                 "convert the file to metres",
             )
+        if not isinstance(data.get("seams"), list):
+            raise DataError(f"{where}: needs a 'seams' list", fix)
+        layout = "each seam needs 'points' [[x,y,z],...] and 'poses' [[x,y,z,qx,qy,qz,qw],...]"
         seams = []
-        for i, s in enumerate(data.get("seams", [])):
+        for i, s in enumerate(data["seams"]):
+            missing = [k for k in ("points", "poses") if not isinstance(s, dict) or k not in s]
+            if missing:
+                raise DataError(f"{where}: seams[{i}] is missing {', '.join(missing)}", layout)
             try:
                 pts = np.asarray(s["points"], dtype=float).reshape(-1, 3)
                 poses7 = np.asarray(s["poses"], dtype=float).reshape(-1, 7)
-            except (KeyError, ValueError) as e:
-                raise DataError(
-                    f"{where}: seam {i} is malformed ({e})",
-                    "each seam needs 'points' [[x,y,z],...] and 'poses' [[x,y,z,qx,qy,qz,qw],...]",
-                ) from None
+            except (TypeError, ValueError) as e:
+                raise DataError(f"{where}: seams[{i}] is malformed ({e})", layout) from None
             if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(poses7))):
-                raise DataError(f"{where}: seam {i} has NaN or infinite values", "regenerate the path")
+                raise DataError(f"{where}: seams[{i}] has NaN or infinite values", "regenerate the path")
+            if np.any(np.abs(np.linalg.norm(poses7[:, 3:], axis=1) - 1.0) > 1e-6):
+                raise DataError(
+                    f"{where}: seams[{i}] has non-unit quaternions in its poses",
+                    "normalise the quaternions [qx, qy, qz, qw]",
+                )
             extra = {
                 k: v for k, v in s.items() if k not in ("id", "joint", "closed", "length", "points", "poses")
             }

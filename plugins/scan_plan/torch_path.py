@@ -13,18 +13,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
-from weldcell.sdk.artifacts import read_json
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.weldpath import SeamPath, WeldPath
 
 from .seams import SeamPolyline
-
-SCHEMA = "weldcell/weld-path@1"
 
 
 @dataclass
@@ -184,78 +180,28 @@ def plan_torch_path(
     return TorchPath(seam.id, poses, targets, bool(seam.closed))
 
 
-# ----------------------------------------------------------------------------- weld-path JSON
+# ----------------------------------------------------------------------------- weld path
 
 
-def weld_path_json(
+def weld_path(
     seams: list[SeamPolyline], paths: list[TorchPath], frame: str = "base", metrics: dict | None = None
-) -> dict[str, Any]:
-    """The ``weldcell/weld-path@1`` document of seams and their torch paths (one path per seam)."""
+) -> WeldPath:
+    """The :class:`~weldcell.sdk.weldpath.WeldPath` of seams and their torch paths (one path per seam).
+
+    Each seam keeps its estimated approach directions under ``"approach"`` (used for evaluation).
+    ``WeldPath.to_json()`` gives the ``weldcell/weld-path@1`` document, ``WeldPath.from_json`` reads one.
+    """
     if len(seams) != len(paths):
         raise DataError(f"{len(seams)} seams but {len(paths)} paths", "plan one torch path per seam")
-    out = []
-    for s, p in zip(seams, paths, strict=True):
-        out.append(
-            {
-                "id": int(s.id),
-                "joint": s.joint_class,
-                "points": np.asarray(s.points, dtype=float).tolist(),
-                "approach": np.asarray(s.normals, dtype=float).tolist(),
-                "poses": p.to_pose7(),
-                "closed": bool(s.closed),
-                "length": float(s.length),
-            }
+    out = [
+        SeamPath(
+            id=f"s{s.id}",
+            joint=s.joint_class,
+            points=np.asarray(s.points, dtype=float),
+            poses=p.poses,
+            closed=bool(s.closed),
+            extra={"approach": np.round(np.asarray(s.normals, dtype=float), 6).tolist()},
         )
-    return {"schema": SCHEMA, "frame": str(frame), "units": "m", "seams": out, "metrics": dict(metrics or {})}
-
-
-def read_weld_path_json(doc: dict | str | Path) -> dict[str, Any]:
-    """Read and validate a ``weldcell/weld-path@1`` document (dict or file path).
-
-    Raises DataError on a wrong schema or units, missing keys, or malformed points/poses.
-    Returns the document with ``points`` (K, 3), ``approach`` (K, 3) and ``poses`` (J, 7) as arrays.
-    """
-    where = "weld-path document"
-    if isinstance(doc, (str, Path)):
-        where = str(doc)
-        doc = read_json(doc)
-    if not isinstance(doc, dict):
-        raise DataError(
-            f"{where}: expected a JSON object, got {type(doc).__name__}", "write it with weld_path_json"
-        )
-    if doc.get("schema") != SCHEMA:
-        raise DataError(
-            f"{where}: schema is {doc.get('schema')!r}, expected {SCHEMA!r}",
-            "produce the file with weldcell seam / weld_path_json",
-        )
-    if doc.get("units") != "m":
-        raise DataError(
-            f"{where}: units is {doc.get('units')!r}, expected 'm'", "weld-path files are in metres"
-        )
-    if not isinstance(doc.get("frame"), str) or not isinstance(doc.get("seams"), list):
-        raise DataError(f"{where}: needs a 'frame' string and a 'seams' list", "write it with weld_path_json")
-    seams = []
-    for i, s in enumerate(doc["seams"]):
-        missing = [k for k in ("id", "joint", "points", "poses", "closed", "length") if k not in s]
-        if missing:
-            raise DataError(f"{where}: seams[{i}] lacks {missing}", "write it with weld_path_json")
-        try:
-            pts = np.asarray(s["points"], dtype=float).reshape(-1, 3)
-            poses = np.asarray(s["poses"], dtype=float)
-            appr = np.asarray(s.get("approach", np.zeros((0, 3))), dtype=float).reshape(-1, 3)
-        except (TypeError, ValueError) as e:
-            raise DataError(
-                f"{where}: seams[{i}] has malformed numbers ({e})", "write it with weld_path_json"
-            ) from None
-        if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0:
-            raise DataError(
-                f"{where}: seams[{i}].poses must be a list of [x,y,z,qx,qy,qz,qw]",
-                "write it with weld_path_json",
-            )
-        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(poses))):
-            raise DataError(f"{where}: seams[{i}] has NaN or infinite values", "plan the path again")
-        qn = np.linalg.norm(poses[:, 3:], axis=1)
-        if np.any(np.abs(qn - 1.0) > 1e-6):
-            raise DataError(f"{where}: seams[{i}] has non-unit quaternions", "normalise the quaternions")
-        seams.append({**s, "points": pts, "poses": poses, "approach": appr})
-    return {**doc, "seams": seams}
+        for s, p in zip(seams, paths, strict=True)
+    ]
+    return WeldPath(out, frame=frame, metrics=dict(metrics or {}))

@@ -7,14 +7,9 @@ import json
 import numpy as np
 import pytest
 from weldcell.plugins.scan_plan.seams import SeamPolyline, extract_seams
-from weldcell.plugins.scan_plan.torch_path import (
-    SCHEMA,
-    plan_torch_path,
-    read_weld_path_json,
-    slerp_quaternions,
-    weld_path_json,
-)
+from weldcell.plugins.scan_plan.torch_path import plan_torch_path, slerp_quaternions, weld_path
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.weldpath import WeldPath
 
 from .test_seams import cylinder_on_plate, t_fillet
 
@@ -116,14 +111,16 @@ def test_paths_on_extracted_seams_end_to_end(tmp_path):
     P, N, roots, _ = t_fillet(seed=5)
     res = extract_seams(P, N)
     paths = [plan_torch_path(s, standoff=0.015, travel_angle=np.deg2rad(10)) for s in res.seams]
-    doc = weld_path_json(res.seams, paths, frame="base", metrics={"n_seams": len(res.seams)})
+    doc = weld_path(res.seams, paths, frame="base", metrics={"n_seams": len(res.seams)}).to_json()
+    assert doc["schema"] == "weldcell/weld-path@1" and doc["units"] == "m"
     f = tmp_path / "path.json"
     f.write_text(json.dumps(doc))
-    back = read_weld_path_json(f)
-    assert back["schema"] == SCHEMA and back["units"] == "m" and back["metrics"]["n_seams"] == len(res.seams)
-    for s, p, b in zip(res.seams, paths, back["seams"], strict=True):
-        assert np.allclose(b["points"], s.points) and np.allclose(b["poses"], p.to_pose7())
-        assert b["closed"] == s.closed and b["joint"] == s.joint_class
+    back = WeldPath.from_json(f)
+    assert back.frame == "base" and back.metrics["n_seams"] == len(res.seams)
+    for s, p, b in zip(res.seams, paths, back.seams, strict=True):
+        assert np.allclose(b.points, s.points, atol=1e-6) and np.allclose(b.poses, p.poses, atol=1e-6)
+        assert np.allclose(b.extra["approach"], s.normals, atol=1e-5)
+        assert b.closed == s.closed and b.joint == s.joint_class
         # every torch axis points down into the joint and meets the seam within 1 mm of the root
         z = p.poses[:, :3, 2]
         assert np.all(z[:, 2] < -0.5)
@@ -134,25 +131,25 @@ def test_paths_on_extracted_seams_end_to_end(tmp_path):
     assert len(ring) == 1 and plan_torch_path(ring[0], standoff=0.01).closed
 
 
-def test_read_weld_path_json_rejects_bad_documents(tmp_path):
+def test_reading_a_weld_path_rejects_bad_documents(tmp_path):
     seam = line_seam()
-    good = weld_path_json([seam], [plan_torch_path(seam, standoff=0.01)])
-    assert read_weld_path_json(good)["seams"][0]["poses"].shape[1] == 7
+    good = weld_path([seam], [plan_torch_path(seam, standoff=0.01)]).to_json()
+    assert WeldPath.from_json(good).seams[0].poses.shape[1:] == (4, 4)
     bad_cases = [
         ({**good, "schema": "weldcell/weld-path@0"}, "schema"),
         ({**good, "units": "mm"}, "units"),
-        ({**good, "seams": [{"id": 0}]}, "lacks"),
+        ({**good, "seams": [{"id": 0}]}, "missing points, poses"),
         ({**good, "seams": [{**good["seams"][0], "poses": [[0, 0, 0, 0, 0, 0, 2.0]]}]}, "non-unit"),
         ({**good, "seams": [{**good["seams"][0], "poses": [[0, 0, 0]]}]}, "poses"),
         ([1, 2], "JSON object"),
     ]
     for doc, match in bad_cases:
         with pytest.raises(DataError, match=match):
-            read_weld_path_json(doc)
+            WeldPath.from_json(doc)
     with pytest.raises(DataError, match="not found"):
-        read_weld_path_json(tmp_path / "missing.json")
+        WeldPath.from_json(tmp_path / "missing.json")
     with pytest.raises(DataError, match="seams but"):
-        weld_path_json([seam], [])
+        weld_path([seam], [])
 
 
 def test_bad_seams_and_settings_raise_data_error():

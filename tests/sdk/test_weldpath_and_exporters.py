@@ -82,10 +82,10 @@ def test_quaternions_are_stored_with_non_negative_w(path):
     [
         ({"schema": "weldcell/weld-path@2", "seams": []}, "schema is 'weldcell/weld-path@2', expected"),
         ({"seams": []}, "schema is None"),
-        ([1, 2], "schema is 'list'"),
+        ([1, 2], "expected a JSON object, got list"),
         ({"schema": SCHEMA, "units": "mm", "seams": []}, "units 'mm'; weld paths are stored in metres"),
-        ({"schema": SCHEMA, "seams": [{"points": [[0, 0, 0]]}]}, "seam 0 is malformed"),
-        ({"schema": SCHEMA, "seams": [{"points": [[0, 0]], "poses": []}]}, "seam 0 is malformed"),
+        ({"schema": SCHEMA, "seams": [{"points": [[0, 0, 0]]}]}, "seams[0] is missing poses"),
+        ({"schema": SCHEMA, "seams": [{"points": [[0, 0]], "poses": []}]}, "seams[0] is malformed"),
         (
             {
                 "schema": SCHEMA,
@@ -94,7 +94,7 @@ def test_quaternions_are_stored_with_non_negative_w(path):
                     {"points": [[0, np.nan, 0]], "poses": []},
                 ],
             },
-            "seam 1 has NaN",
+            "seams[1] has NaN",
         ),
     ],
 )
