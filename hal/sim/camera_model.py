@@ -340,16 +340,14 @@ class DepthImage:
     def to_points(self) -> np.ndarray:
         """Back-project the valid pixels to (N, 3) points in the camera frame (row-major pixel order).
 
-        Paper 004 eq. (3): X = (u - u0) d / fx, Y = (v - v0) d / fy, Z = d (depth scale 1: metres).
+        Paper 004 eq. (3): X = (u - u0) d / fx, Y = (v - v0) d / fy, Z = d (depth scale 1: metres);
+        the same back-projection as every depth camera's :meth:`DepthFrame.to_cloud`.
         """
-        v, u = np.nonzero(self.valid)
-        z = self.depth[v, u].astype(float)
-        k = self.intrinsics
-        return np.column_stack([(u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z])
+        return self.to_cloud().points
 
     def to_cloud(self) -> PointCloud:
         """The valid pixels as a :class:`PointCloud` in frame 'camera'."""
-        return PointCloud(self.to_points(), frame="camera", meta={"stamp": self.timestamp})
+        return self.to_frame().to_cloud()
 
     def to_world_cloud(self, frame: str = "world") -> PointCloud:
         """The valid pixels as a :class:`PointCloud` in the world frame (through ``T_world_camera``)."""
