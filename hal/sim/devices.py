@@ -35,16 +35,19 @@ class SimRobot(Robot):
         dry_run: bool = False,
         q_start: np.ndarray | None = None,
         flange: FlangeGeometry | None = None,
+        q_error: np.ndarray | None = None,
     ) -> None:
         super().__init__(name, gate or SafetyGate(model=model), motion, dry_run)
         self.model = model
+        # the real arm's joint zero offsets: it reports fk(q) but physically stands at fk(q + q_error)
+        self.q_error = np.zeros(model.dof) if q_error is None else np.asarray(q_error, dtype=float)
         self.world = world
         self.T_world_base = np.eye(4) if T_world_base is None else np.asarray(T_world_base, dtype=float)
         self.q = np.array(model.home if q_start is None else q_start, dtype=float)
         self.trajectory: list[tuple[float, np.ndarray]] = []
         self.connected = True
         world.add_frame(f"{name}.base", lambda: self.T_world_base)
-        world.add_frame(f"{name}.flange", lambda: self.T_world_base @ self.model.fk(self.q))
+        world.add_frame(f"{name}.flange", lambda: self.T_world_base @ self.model.fk(self.q + self.q_error))
         world.robots[name] = self
         if flange is not None:  # the flange plate and last link, seen by the depth cameras
             world.attach(f"{name}.flange-geometry", f"{name}.flange", *flange_mesh(flange))

@@ -42,6 +42,7 @@ def robot(settings, ctx) -> d.SimRobot:
         dry_run=ctx.dry_run,
         q_start=q_start,
         flange=flange_for(model.name) if settings.flange_geometry else None,
+        q_error=np.random.default_rng(ctx.seed + 11).normal(0.0, settings.joint_offset_error, model.dof),
     )
 
 

@@ -29,6 +29,13 @@ class SimRobotSettings(RobotMotionSettings):
         description="put the ISO 9409-1 flange and the last link into the depth cameras' scene (they "
         "move with the robot; hand-eye calibration scans them)",
     )
+    joint_offset_error: Angle = Field(
+        0.0,
+        ge=0,
+        description="std of the arm's true joint zero offsets [rad]: the reported pose uses the nominal "
+        "model, "
+        "what the sensors see uses the true one (a real arm's absolute-accuracy error)",
+    )
 
 
 class SimCameraSettings(Settings):
