@@ -10,8 +10,8 @@ the link, as in a real scan (paper 003 §2.1.4).
 Frames: the mesh lives in the flange frame (ISO 9409-1): origin at the face centre, z out of the face
 (away from the robot), x toward the pin hole. Units: metres.
 
-The ISO dimensions repeat the nominal values of ISO 9409-1:2004 Table 1 for the common sizes (the
-hal may not import the hand-eye plugin, which has the same table for its flange models). The link
+The ISO dimensions come from :mod:`weldcell.hal.iso9409` (nominal ISO 9409-1:2004 Table 1 values, the
+one table shared with the hand-eye plugin's flange models). The link
 diameters are approximate outer diameters of each arm's last wrist link (ASSUMED from product
 drawings; only their being wider than the plate matters for the segmentation).
 """
@@ -21,17 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from weldcell.hal.iso9409 import ISO9409_1, check_dimensions
 from weldcell.sdk.errors import DataError
-
-#: d1 -> (d2 centring hole, d3 outer diameter, d4 tapped hole, d5 pin hole, number of tapped holes), mm
-ISO9409_1_MM: dict[float, tuple[float, float, float, float, int]] = {
-    31.5: (20.0, 40.0, 5.0, 5.0, 4),
-    40.0: (25.0, 50.0, 6.0, 6.0, 4),
-    50.0: (31.5, 63.0, 6.0, 6.0, 4),
-    63.0: (40.0, 80.0, 6.0, 6.0, 4),
-    80.0: (50.0, 100.0, 8.0, 8.0, 6),
-    100.0: (63.0, 125.0, 8.0, 8.0, 6),
-}
 
 
 @dataclass(frozen=True)
@@ -46,10 +37,10 @@ class FlangeGeometry:
     dims_mm: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if not self.dims_mm and float(self.d1_mm) not in ISO9409_1_MM:
+        if not self.dims_mm and float(self.d1_mm) not in ISO9409_1:
             raise DataError(
                 f"no ISO 9409-1 flange with pitch circle {self.d1_mm} mm",
-                f"use one of {sorted(ISO9409_1_MM)} or give dims_mm (d1, d2, d3, d4, d5, n)",
+                f"use one of {sorted(ISO9409_1)} or give dims_mm (d1, d2, d3, d4, d5, n)",
             )
         if self.link_diameter <= self.outer_diameter:
             raise DataError(
@@ -66,10 +57,9 @@ class FlangeGeometry:
     def dims(self) -> dict:
         """d1..d5 (m) and n."""
         if self.dims_mm:
-            d = dict(self.dims_mm)
+            d = check_dimensions(self.dims_mm)
         else:
-            d2, d3, d4, d5, n = ISO9409_1_MM[float(self.d1_mm)]
-            d = {"d1": float(self.d1_mm), "d2": d2, "d3": d3, "d4": d4, "d5": d5, "n": n}
+            d = {"d1": float(self.d1_mm), **ISO9409_1[float(self.d1_mm)]}
         return {**{k: float(d[k]) * 1e-3 for k in ("d1", "d2", "d3", "d4", "d5")}, "n": int(d["n"])}
 
     @property

@@ -1,10 +1,17 @@
 """Target-based hand-eye solvers (calibration board on the flange or in the cell) beside the flange
 method: AX=XB (Tsai, Park, Horaud, Andreff, Daniilidis) and AX=YB robot-world/hand-eye (Shah, Li).
 
-OpenCV's ``cv2.calibrateHandEye`` / ``cv2.calibrateRobotWorldHandEye`` are used when the installed
-OpenCV exposes them (imported lazily, here only). The OpenCV 5.0 Python wheels ship the method
-constants but not these two functions, so each method is also implemented here in numpy following
-the same papers; ``backend`` says which one ran.
+OpenCV's ``cv2.calibrateHandEye`` / ``cv2.calibrateRobotWorldHandEye`` (OpenCV 4.x; the project pins
+``opencv-contrib-python-headless<5``) are used when the installed OpenCV exposes them (imported lazily,
+here only) and ``backend`` is "auto" or "opencv". Without them (no OpenCV, or the 5.0 wheels, which
+ship the method constants but not the two functions) the numpy implementations below run instead;
+``info["backend"]`` says which one ran. The numpy versions build the same equations as OpenCV (all
+pose pairs i < j, motions ``A = inv(G_j) G_i``, ``B = C_j inv(C_i)``; Andreff's and Li's translations
+from their joint linear solutions) and agree with OpenCV 4.14 to ~1e-12 on noise-free and noisy data
+(tests/handeye/test_handeye_algorithms.py), except Tsai's translation on noisy data (same rotation;
+OpenCV 4.14's translation step differs from the plain least squares of Tsai's eq. 15 that we solve, by
+~0.2 mm at 1 mm noise). Tsai is refused with a DataError when the hand-eye rotation is 180° (its
+parametrization is singular there; OpenCV returns NaN).
 
 Inputs are robot flange poses ``T_base_flange`` (n, 4, 4) and board poses ``T_cam_target``
 (n, 4, 4). Eye-in-hand returns ``T_flange_camera``; eye-on-base returns ``T_base_camera``.
@@ -19,6 +26,11 @@ from weldcell.sdk.geometry import invert, orthonormalize, skew
 
 HAND_EYE_METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 ROBOT_WORLD_METHODS = ("shah", "li")
+_TSAI_180 = (
+    "Tsai's method cannot solve this data: the hand-eye rotation is (nearly) 180°, where its modified "
+    "Rodrigues parameters are singular"
+)
+_TSAI_FIX = "use method park, horaud, andreff or daniilidis (or shah/li)"
 
 
 def _cv2():
@@ -51,7 +63,9 @@ def _ax_xb_numpy(A: np.ndarray, B: np.ndarray, method: str) -> np.ndarray:
         Pa = 2 * np.sin(ta / 2)[:, None] * rva / np.maximum(ta, 1e-12)[:, None]
         Pb = 2 * np.sin(tb / 2)[:, None] * rvb / np.maximum(tb, 1e-12)[:, None]
         M = np.concatenate([skew(a + b) for a, b in zip(Pa, Pb, strict=True)])
-        Pp = np.linalg.lstsq(M, (Pb - Pa).reshape(-1), rcond=None)[0]
+        Pp, _, _, sv = np.linalg.lstsq(M, (Pb - Pa).reshape(-1), rcond=None)
+        if sv[-1] < 1e-9 * sv[0]:
+            raise DataError(_TSAI_180, _TSAI_FIX)
         P = 2 * Pp / np.sqrt(1 + Pp @ Pp)
         n2 = P @ P
         R = (1 - n2 / 2) * np.eye(3) + 0.5 * (np.outer(P, P) + np.sqrt(4 - n2) * skew(P))
@@ -103,7 +117,9 @@ def _ax_xb_numpy(A: np.ndarray, B: np.ndarray, method: str) -> np.ndarray:
         x = np.linalg.lstsq(K, rhs, rcond=None)[0]
         Rr = x[:9].reshape(3, 3)
         Rr = np.sign(np.linalg.det(Rr)) * Rr / abs(np.linalg.det(Rr)) ** (1 / 3)
-        R = orthonormalize(Rr)
+        X = np.eye(4)
+        X[:3, :3], X[:3, 3] = orthonormalize(Rr), x[9:]  # t from the joint solution (eq. 10), as OpenCV
+        return X
     elif method == "daniilidis":  # Daniilidis 1999, dual quaternions + SVD
 
         def dq(T):
@@ -190,11 +206,20 @@ def _ax_yb_numpy(A: np.ndarray, B: np.ndarray, method: str) -> tuple[np.ndarray,
             K[12 * k + 9 : 12 * k + 12, 21:24] = -I3
             rhs[12 * k + 9 : 12 * k + 12] = -tA[k]
         x = np.linalg.lstsq(K, rhs, rcond=None)[0]
-        Rx, Ry = orthonormalize(x[:9].reshape(3, 3)), orthonormalize(x[9:18].reshape(3, 3))
+        X, Y = np.eye(4), np.eye(4)  # rotations projected to SO(3), translations from the joint solution
+        X[:3, :3], X[:3, 3] = orthonormalize(x[:9].reshape(3, 3)), x[18:21]
+        Y[:3, :3], Y[:3, 3] = orthonormalize(x[9:18].reshape(3, 3)), x[21:24]
+        return X, Y
     else:
         raise DataError(f"unknown AX=YB method '{method}'", f"use one of {', '.join(ROBOT_WORLD_METHODS)}")
-    M = np.concatenate([np.c_[RA[k], -I3] for k in range(n)])
-    rhs = np.concatenate([Ry @ tB[k] - tA[k] for k in range(n)])
+    return _ax_yb_translation(A, B, Rx, Ry)
+
+
+def _ax_yb_translation(A: np.ndarray, B: np.ndarray, Rx: np.ndarray, Ry: np.ndarray):
+    """Translations of A_i X = Y B_i for fixed rotations: R_A,i t_X - t_Y = R_Y t_B,i - t_A,i (LS)."""
+    n, I3 = len(A), np.eye(3)
+    M = np.concatenate([np.c_[A[k, :3, :3], -I3] for k in range(n)])
+    rhs = np.concatenate([Ry @ B[k, :3, 3] - A[k, :3, 3] for k in range(n)])
     t = np.linalg.lstsq(M, rhs, rcond=None)[0]
     X, Y = np.eye(4), np.eye(4)
     X[:3, :3], X[:3, 3] = Rx, t[:3]
@@ -215,10 +240,14 @@ def solve_hand_eye(
     config: str = "eye-in-hand",
     method: str = "tsai",
     backend: str = "auto",
+    resolve_translation: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """AX=XB hand-eye from flange and board poses. Returns (X, info): eye-in-hand X =
     ``T_flange_camera``, eye-on-base X = ``T_base_camera``; ``info`` holds the fixed-side transform
-    (``T_base_target`` or ``T_flange_target``) and the backend used ("opencv" or "numpy")."""
+    (``T_base_target`` or ``T_flange_target``) and the backend used ("opencv" or "numpy").
+    ``resolve_translation`` (not in OpenCV) re-solves t_X by least squares, (R_A - I) t_X = R_X t_B - t_A,
+    with the final rotation: it changes Andreff's and Daniilidis' translations (simultaneous methods),
+    which otherwise come from their joint solutions; see docs/methods/hand-eye.md for the gain."""
     method = method.lower()
     if method not in HAND_EYE_METHODS:
         raise DataError(f"unknown AX=XB method '{method}'", f"use one of {', '.join(HAND_EYE_METHODS)}")
@@ -237,15 +266,28 @@ def solve_hand_eye(
         X = np.eye(4)
         X[:3, :3], X[:3, 3] = R, np.ravel(t)
         used = "opencv"
+        if not np.all(np.isfinite(X)):
+            if method == "tsai":
+                raise DataError(_TSAI_180, _TSAI_FIX)
+            raise DataError(
+                f"OpenCV's {method} solver returned NaN on these poses", "check the pose diversity"
+            )
     elif backend == "opencv":
         raise DataError("this OpenCV build has no cv2.calibrateHandEye", "use backend='numpy' or OpenCV 4.x")
     else:
-        # gripper motion A = inv(G_i) G_j, camera motion B = C_i inv(C_j); A X = X B
+        # all pairs i < j, OpenCV's order: gripper motion A = inv(G_j) G_i, camera motion
+        # B = C_j inv(C_i); A X = X B
         i, j = np.triu_indices(len(G), 1)
-        A = np.einsum("nij,njk->nik", np.linalg.inv(G[i]), G[j])
-        B = np.einsum("nij,njk->nik", C[i], np.linalg.inv(C[j]))
+        A = np.einsum("nij,njk->nik", np.linalg.inv(G[j]), G[i])
+        B = np.einsum("nij,njk->nik", C[j], np.linalg.inv(C[i]))
         X = _ax_xb_numpy(A, B, method)
         used = "numpy"
+    if resolve_translation:
+        i, j = np.triu_indices(len(G), 1)
+        A = np.einsum("nij,njk->nik", np.linalg.inv(G[j]), G[i])
+        B = np.einsum("nij,njk->nik", C[j], np.linalg.inv(C[i]))
+        X = X.copy()
+        X[:3, 3] = _translation_ls(A, B, X[:3, :3])
     fixed = np.einsum("nij,jk,nkl->nil", G, X, C)  # G X C = constant (target in base / in flange)
     T_fixed = _mean_pose(fixed)
     res = np.linalg.norm(fixed[:, :3, 3] - T_fixed[:3, 3], axis=1)
@@ -259,9 +301,13 @@ def solve_robot_world(
     config: str = "eye-in-hand",
     method: str = "shah",
     backend: str = "auto",
+    resolve_translation: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """AX=YB robot-world/hand-eye (Shah, Li). Eye-in-hand: X = ``T_flange_camera`` and
-    ``T_base_target``; eye-on-base: X = ``T_base_camera`` and ``T_flange_target``."""
+    ``T_base_target``; eye-on-base: X = ``T_base_camera`` and ``T_flange_target``.
+    ``resolve_translation`` (not in OpenCV) re-solves both translations by least squares with the final
+    rotations (Li's otherwise come from the joint linear solution, whose rotation block is not yet a
+    rotation; Shah already does this)."""
     method = method.lower()
     if method not in ROBOT_WORLD_METHODS:
         raise DataError(f"unknown AX=YB method '{method}'", f"use one of {', '.join(ROBOT_WORLD_METHODS)}")
@@ -292,6 +338,8 @@ def solve_robot_world(
     else:
         wTb, cTg = _ax_yb_numpy(A, B, method)
         used = "numpy"
+    if resolve_translation:
+        wTb, cTg = _ax_yb_translation(A, B, wTb[:3, :3], cTg[:3, :3])
     if config == "eye-on-base":
         X, other, key = invert(wTb), invert(cTg), "T_flange_target"
     else:

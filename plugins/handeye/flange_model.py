@@ -6,8 +6,9 @@ d5 on d1) plus the outer rim wall. :func:`load_flange_model` reads a CAD mesh (S
 model cloud (PCD/PLY). Models live in the flange frame: origin at the face centre (the TCP),
 z along the flange axis pointing away from the robot, x toward the pin hole.
 
-The dimensions below are the nominal ISO 9409-1:2004 Table 1 values for the common sizes
-(verify against the robot maker's drawing; every value can be overridden).
+The dimensions are the nominal ISO 9409-1:2004 Table 1 values of :mod:`weldcell.hal.iso9409` (the
+project's one copy, shared with the simulated robots; verify against the robot maker's drawing, every
+value can be overridden).
 """
 
 from __future__ import annotations
@@ -15,30 +16,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from weldcell.hal.iso9409 import ISO9409_1, check_dimensions, iso9409_dimensions
 from weldcell.sdk.cloud import UNIT_SCALE
 from weldcell.sdk.errors import DataError
 
-#: d1 (pitch circle) -> d2 centring hole (H7), d3 outer diameter, thread size d4, pin hole d5, N holes;
-#: all in mm. 50 mm is the ISO 9409-1-50-4-M6 plate of UR, Franka, AUBO (Fig. 5).
-ISO9409_1: dict[float, dict] = {
-    31.5: {"d2": 20.0, "d3": 40.0, "d4": 5.0, "d5": 5.0, "n": 4},
-    40.0: {"d2": 25.0, "d3": 50.0, "d4": 6.0, "d5": 6.0, "n": 4},
-    50.0: {"d2": 31.5, "d3": 63.0, "d4": 6.0, "d5": 6.0, "n": 4},
-    63.0: {"d2": 40.0, "d3": 80.0, "d4": 6.0, "d5": 6.0, "n": 4},
-    80.0: {"d2": 50.0, "d3": 100.0, "d4": 8.0, "d5": 8.0, "n": 6},
-    100.0: {"d2": 63.0, "d3": 125.0, "d4": 8.0, "d5": 8.0, "n": 6},
-}
-
-
-def iso9409_dimensions(d1_mm: float) -> dict:
-    """The table row for pitch circle ``d1_mm`` (DataError listing the sizes for an unknown one)."""
-    key = float(d1_mm)
-    if key not in ISO9409_1:
-        raise DataError(
-            f"no ISO 9409-1 flange with pitch circle {d1_mm} mm in the table",
-            f"use one of {sorted(ISO9409_1)} or give the dimensions explicitly",
-        )
-    return {"d1": key, **ISO9409_1[key]}
+__all__ = ["ISO9409_1", "iso9409_dimensions", "iso9409_model", "load_flange_model"]
 
 
 def iso9409_model(
@@ -51,7 +33,7 @@ def iso9409_model(
     the centring hole d2 and the outer diameter d3 without the N tapped holes (on d1, offset half a
     pitch from the pin hole) and the pin hole (on d1 at +x), plus the outer rim wall down to
     ``-rim_depth``. ``spacing`` is the sampling grid (m)."""
-    d = dict(iso9409_dimensions(d1_mm)) if dims is None else dict(dims)
+    d = iso9409_dimensions(d1_mm) if dims is None else check_dimensions(dims)
     mm = 1e-3
     r_out, r_in, r_pc = d["d3"] / 2 * mm, d["d2"] / 2 * mm, d["d1"] / 2 * mm
     g = np.arange(-r_out, r_out + spacing / 2, spacing)

@@ -1,22 +1,35 @@
 """The simulation protocol of §3.1 as a reusable generator.
 
-Eye-on-base cell: the ground-truth ``T_base_camera`` of eq. 19 (rpy [π, 0, -π/2], t = [0.6, -0.0125,
-1] m); 75 flange poses on a grid in a 0.3 x 0.3 x 0.2 m box with random orientations (roll, pitch,
-yaw each within ±0.3 rad of flange-facing-the-camera); camera points ``p_cam = T_cam_base p_base +
-N(0, σ)`` (eq. 20) for σ from 0.2 to 10 mm, 100 noise realizations per level.
+Eye-on-base cell: the ground-truth ``T_base_camera`` of eq. 19 (the printed matrix: rpy [π, 0, -π/2],
+t = [0.6, -0.0125, 1] m); 75 flange poses on a 5 x 5 x 3 grid spanning a 0.3 x 0.3 x 0.2 m box with
+random orientations (roll, pitch, yaw each within ±0.3 rad of flange-facing-the-camera); camera
+points ``p_cam = T_cam_base p_base + N(0, σ)`` (eq. 20) for σ from 0.2 to 10 mm, 100 noise
+realizations per level.
+
+Where the paper is silent, the authors' published Gazebo scripts (github.com/ancorasir/
+flange_handeye_calibration, ``calibration_grid`` / simulation test scripts) fix the details: the grid
+is x ∈ [0.45, 0.75], y ∈ [-0.15, 0.15], z ∈ [0.2, 0.4] m in the base (``linspace`` with 5, 5, 3
+nodes), orientations ``quaternion_from_euler(0.3·U(-1, 1), ...)``, the error is ``inv(Ĥ) @ H_true``
+(δt = its translation, in mm) and Algorithm 1 runs over a fresh random permutation of the pairs.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from weldcell.sdk.geometry import T_from_rpy, invert
+from weldcell.sdk.geometry import invert
 
-#: eq. 19
-PAPER_T_BASE_CAMERA = T_from_rpy([3.1415, 0.0, -1.57], [0.6, -0.0125, 1.0])
+#: eq. 19, as printed (the rpy [3.1415, 0, -1.57] of the text rounded to this exact matrix)
+PAPER_T_BASE_CAMERA = np.array(
+    [[0.0, -1.0, 0.0, 0.6], [-1.0, 0.0, 0.0, -0.0125], [0.0, 0.0, -1.0, 1.0], [0.0, 0.0, 0.0, 1.0]]
+)
+#: σ_noise of §3.1: 0.2 mm to 10 mm in 0.2 mm steps (m)
 PAPER_SIGMAS = np.round(np.arange(0.2, 10.0 + 1e-9, 0.2), 1) * 1e-3
+#: centre of the authors' Gazebo grid (x 0.45-0.75, y ±0.15, z 0.2-0.4 m in the base)
+PAPER_GRID_CENTER = (0.6, 0.0, 0.3)
 
 
 @dataclass
@@ -28,9 +41,18 @@ class SimCell:
     p_base: np.ndarray  # (n, 3) flange centres in the base
     p_cam_true: np.ndarray  # (n, 3) the same in the camera
 
-    def noisy_p_cam(self, sigma: float, rng: np.random.Generator) -> np.ndarray:
-        """Eq. 20: ``p_cam = T_cam_base p_base + N(0, σ)`` (isotropic, σ in metres)."""
-        return self.p_cam_true + rng.normal(0.0, sigma, self.p_cam_true.shape)
+    def noisy_p_cam(
+        self, sigma: float, rng: np.random.Generator, model: Literal["isotropic", "ray"] = "isotropic"
+    ) -> np.ndarray:
+        """Eq. 20: ``p_cam = T_cam_base p_base + N(0, σ)``, σ in metres. ``"isotropic"`` (the paper)
+        adds N(0, σ) to each coordinate; ``"ray"`` puts N(0, σ) along the line of sight only, the
+        depth-dominant error of a structured-light or ToF scanner (a sensitivity check)."""
+        if model == "isotropic":
+            return self.p_cam_true + rng.normal(0.0, sigma, self.p_cam_true.shape)
+        if model == "ray":
+            u = self.p_cam_true / np.linalg.norm(self.p_cam_true, axis=1, keepdims=True)
+            return self.p_cam_true + u * rng.normal(0.0, sigma, (len(u), 1))
+        raise ValueError(f"unknown noise model {model!r}")
 
     def board_poses(
         self,
@@ -58,16 +80,17 @@ class SimCell:
 def simulate_cell(
     n_poses: int = 75,
     box: tuple[float, float, float] = (0.3, 0.3, 0.2),
-    center: tuple[float, float, float] = (0.6, -0.0125, 0.35),
+    center: tuple[float, float, float] = PAPER_GRID_CENTER,
     max_angle: float = 0.3,
     T_base_camera: np.ndarray | None = None,
     grid: bool = True,
     rng: np.random.Generator | int | None = 0,
 ) -> SimCell:
     """Flange poses of the §3.1 protocol. With ``grid`` the positions are the first ``n_poses``
-    nodes of a 5 x 5 x 3 grid spanning ``box`` (75 nodes, shuffled), else uniform in the box. The
-    flange z axis faces the camera (base -z for the eq. 19 camera looking down), rotated by roll,
-    pitch, yaw uniform in ±``max_angle``."""
+    nodes of a 5 x 5 x 3 grid spanning ``box`` around ``center`` (75 nodes, shuffled; the authors'
+    Gazebo grid by default), else uniform in the box. The flange z axis faces the camera (base +z for
+    the eq. 19 camera looking down), rotated by roll, pitch, yaw uniform in ±``max_angle``. Only the
+    flange centres enter the point fit; the orientations matter for board poses and scans."""
     rng = np.random.default_rng(rng)
     T_bc = PAPER_T_BASE_CAMERA if T_base_camera is None else np.asarray(T_base_camera, float)
     b, c = np.asarray(box, float), np.asarray(center, float)
@@ -89,6 +112,15 @@ def simulate_cell(
     T[:, :3, :3], T[:, :3, 3] = R, pos
     p_cam = pos @ invert(T_bc)[:3, :3].T + invert(T_bc)[:3, 3]
     return SimCell(T_bc, T, pos, p_cam)
+
+
+def workspace_error(H: np.ndarray, H_true: np.ndarray, points: np.ndarray) -> float:
+    """RMS displacement (m) of ``points`` (n, 3, in the frame {Cam}) mapped by ``H`` instead of
+    ``H_true``: the error a user of the calibration sees in the work volume, unlike δt of
+    ``inv(H) @ H_true``, which is the displacement of the camera origin."""
+    P = np.asarray(points, float)
+    d = P @ (H[:3, :3] - H_true[:3, :3]).T + (H[:3, 3] - H_true[:3, 3])
+    return float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
 
 
 def render_flange_scan(

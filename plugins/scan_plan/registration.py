@@ -10,6 +10,11 @@ Beyond the paper (see docs/methods/reconstruction.md): optional robust weights (
 point-to-plane residuals, iteratively re-weighted), and the update applied as an exact rotation
 (``update="exact"``, the default) and re-orthonormalised, so the estimate stays a rigid transform.
 ``update="linear"`` applies the paper's matrix M^ of eq. 5 and projects it onto SO(3).
+
+Speed (same result as a plain implementation): the nearest-neighbour search re-queries only the source
+points that may have changed neighbour (:class:`NearestCache`), target normals are estimated only for
+the target points that become correspondences (:class:`LazyNormals`), and each iteration forms the
+6x6 normal equations with one (N, 7) matrix product.
 """
 
 from __future__ import annotations
@@ -18,14 +23,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, orthonormalize
 
-from .denoise import as_points, pca_normals
+from .denoise import _knn_normals, as_points
 
 ROBUST_KERNELS = (None, "huber", "tukey")
 UPDATES = ("exact", "linear")
+#: below this many query points one thread is faster than starting worker threads
+_THREADED_QUERY = 4000
 
 
 @dataclass
@@ -37,7 +43,9 @@ class IcpResult:
     correspondence (Open3D's "fitness"), ``inlier_rmse`` the RMS point-to-point distance of the inlier
     pairs (m). ``history`` has one dict per iteration with the values before that iteration's update
     (``fitness``, ``inlier_fraction``, ``inlier_rmse``, ``plane_rmse``, ``n_inliers``) and the update size
-    (``step_rotation`` rad, ``step_translation`` m).
+    (``step_rotation`` rad, ``step_translation`` m). ``distances`` / ``initial_distances``: each source
+    point's distance to its nearest target point at ``T`` / at the initial guess (inf where farther than
+    ``max_correspondence_distance``), e.g. for eq. 20 at a tighter inlier distance without a new search.
     """
 
     T: np.ndarray
@@ -48,6 +56,8 @@ class IcpResult:
     inlier_fraction: float = 0.0
     plane_rmse: float = 0.0
     history: list[dict] = field(default_factory=list)
+    distances: np.ndarray | None = field(default=None, repr=False)
+    initial_distances: np.ndarray | None = field(default=None, repr=False)
 
 
 def _robust_weights(r: np.ndarray, kernel: str | None, scale: float | None) -> np.ndarray:
@@ -64,6 +74,26 @@ def _robust_weights(r: np.ndarray, kernel: str | None, scale: float | None) -> n
     return np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
 
 
+def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rows ``[s x n, n | b]`` of eq. 7 as one (N, 7) array (the cross product column by column)."""
+    J = np.empty((len(src), 7))
+    s0, s1, s2 = src[:, 0], src[:, 1], src[:, 2]
+    n0, n1, n2 = nrm[:, 0], nrm[:, 1], nrm[:, 2]
+    np.subtract(s1 * n2, s2 * n1, out=J[:, 0])
+    np.subtract(s2 * n0, s0 * n2, out=J[:, 1])
+    np.subtract(s0 * n1, s1 * n0, out=J[:, 2])
+    J[:, 3:6] = nrm
+    J[:, 6] = b
+    return J
+
+
+def _solve(J: np.ndarray, weights: np.ndarray | None, rcond: float) -> np.ndarray:
+    """Eq. 8 on the rows ``J = [A | b]``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse."""
+    # einsum, not BLAS: OpenBLAS's threads keep spinning after a call and slow down the KD-tree threads
+    G = np.einsum("ni,nj->ij", J * weights[:, None], J) if weights is not None else np.einsum("ni,nj->ij", J, J)
+    return np.linalg.pinv(G[:6, :6], rcond=rcond, hermitian=True) @ G[:6, 6]
+
+
 def point_to_plane_step(
     src: np.ndarray, tgt: np.ndarray, nrm: np.ndarray, weights: np.ndarray | None = None, rcond: float = 1e-10
 ) -> np.ndarray:
@@ -75,24 +105,34 @@ def point_to_plane_step(
     gives the same minimiser as ``pinv(A) b`` (eq. 8) at a 6x6 cost and returns the minimum-norm
     solution along degenerate directions (e.g. sliding along a plane).
     """
-    A = np.empty((len(src), 6))
-    A[:, :3] = np.cross(src, nrm)
-    A[:, 3:] = nrm
     b = np.einsum("ij,ij->i", tgt - src, nrm)
-    if weights is not None:
-        Aw = A * weights[:, None]
-        H, g = Aw.T @ A, Aw.T @ b
-    else:
-        H, g = A.T @ A, A.T @ b
-    return np.linalg.pinv(H, rcond=rcond, hermitian=True) @ g
+    return _solve(_system_rows(src, nrm, b), weights, rcond)
+
+
+def _rotation_xyz(alpha: float, beta: float, gamma: float) -> np.ndarray:
+    """``Rz(gamma) Ry(beta) Rx(alpha)``: the exact rotation with the solved angles (Low 2004)."""
+    ca, sa, cb, sb, cg, sg = (
+        np.cos(alpha),
+        np.sin(alpha),
+        np.cos(beta),
+        np.sin(beta),
+        np.cos(gamma),
+        np.sin(gamma),
+    )
+    return np.array(
+        [
+            [cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa],
+            [sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa],
+            [-sb, cb * sa, cb * ca],
+        ]
+    )
 
 
 def _step_matrix(x: np.ndarray, update: str) -> np.ndarray:
-    alpha, beta, gamma = x[:3]
+    alpha, beta, gamma = (float(v) for v in x[:3])
     M = np.eye(4)
     if update == "exact":
-        # the exact rotation with the solved angles, R = Rz(gamma) Ry(beta) Rx(alpha) (Low 2004)
-        M[:3, :3] = Rotation.from_euler("xyz", [alpha, beta, gamma]).as_matrix()
+        M[:3, :3] = _rotation_xyz(alpha, beta, gamma)
     else:
         M[:3, :3] = orthonormalize(np.array([[1.0, -gamma, beta], [gamma, 1.0, -alpha], [-beta, alpha, 1.0]]))
     M[:3, 3] = x[3:]
@@ -108,6 +148,11 @@ def _check_transform(T: np.ndarray, what: str) -> np.ndarray:
     return T
 
 
+def _query(tree: cKDTree, q: np.ndarray, k: int, bound: float) -> tuple[np.ndarray, np.ndarray]:
+    workers = -1 if len(q) > _THREADED_QUERY else 1  # thread start-up costs more than it saves on few points
+    return tree.query(q, k=k, distance_upper_bound=bound, workers=workers)
+
+
 class NearestCache:
     """Exact nearest-target look-up for a moving source that re-queries only the points that may have
     changed neighbour.
@@ -115,60 +160,132 @@ class NearestCache:
     After a k=2 query a source point s with nearest target distances d1 <= d2 keeps the same nearest
     neighbour while it moves by less than (d2 - d1) / 2 (triangle inequality), so only points that
     moved further since their last query are searched again; the distance to the kept neighbour is
-    recomputed exactly. Queries use the bound ``B = margin * d_max``: a point with no target within B
-    stays without a correspondence within ``d_max`` while it moves by less than ``B - d_max``.
+    recomputed exactly. Pair queries use the bound ``B = margin * d_max``: a point with no target within
+    B stays without a correspondence within ``d_max`` while it moves by less than ``B - d_max``.
     The result equals a full nearest-neighbour query every iteration (up to exact ties).
+
+    A k=2 query costs ~1.3 k=1 queries and pays off only if the points then move less than their gaps,
+    so while the motion is large (the first ICP iterations) plain k=1 queries are made; pair queries
+    start once the motion predicted for the next step (ICP converges about geometrically: the last
+    step's motion times its ratio to the step before) falls below twice the typical gap.
+    ``query`` must be called with the source points in the same order every time.
     """
 
     def __init__(self, tree: cKDTree, target: np.ndarray, d_max: float, n_source: int, margin: float = 1.5):
-        self.tree, self.target, self.d_max = tree, target, d_max
-        self.bound = margin * d_max
+        self.tree, self.target, self.d_max = tree, target, float(d_max)
+        self.bound = margin * self.d_max
         self.idx = np.full(n_source, -1, dtype=np.int64)
         self.gap = np.full(n_source, -1.0)
-        self.anchor = np.zeros((n_source, 3))
+        self.anchor: np.ndarray | None = None
         self.n_queries = 0
-        self.typical_gap = 0.0
+        self.typical_gap = 0.0  # median gap (m) after pair queries; 0 until the first one
+        self._prev: np.ndarray | None = None
+        self._moves: list[float] = []
+        self._scale = 0.0  # median nearest distance of the last full query (m)
+        self._own_anchor = False  # the anchor array is the caller's until the first partial update
 
-    def _query(self, pts: np.ndarray, sel: np.ndarray | None, pairs: bool) -> None:
-        q = pts if sel is None else pts[sel]
-        workers = -1 if len(q) > 4000 else 1  # thread start-up costs more than it saves on small batches
-        self.n_queries += len(q)
-        if pairs:
-            d, i = self.tree.query(q, k=2, distance_upper_bound=self.bound, workers=workers)
-            d1, d2 = d[:, 0], np.minimum(d[:, 1], self.bound)
-            found = np.isfinite(d1)
-            gap = np.where(found, 0.5 * (d2 - np.where(found, d1, 0.0)), self.bound - self.d_max)
-            idx = np.where(found, i[:, 0], -1)
-        else:  # large motion: the neighbour will change anyway, a cheaper k=1 query (no gap) is enough
-            d1, i1 = self.tree.query(q, k=1, distance_upper_bound=self.d_max, workers=workers)
-            found = np.isfinite(d1)
-            idx = np.where(found, i1, -1)
-            gap = np.full(len(q), -1.0)
-        if sel is None:
-            self.idx, self.gap, self.anchor = idx, gap, pts.copy()
-        else:
-            self.idx[sel], self.gap[sel], self.anchor[sel] = idx, gap, q
-        if pairs and self.typical_gap == 0.0:
-            self.typical_gap = float(np.median(gap))
+    def _step_motion(self, pts: np.ndarray) -> float:
+        """Median motion of the points since the previous call (on every 8th point)."""
+        d = pts[::8] - self._prev[::8]
+        return float(np.sqrt(np.median(np.einsum("ij,ij->i", d, d))))
+
+    def _want_pairs(self) -> bool:
+        if len(self._moves) < 2:
+            return False
+        last, before = self._moves[-1], self._moves[-2]
+        predicted = last * min(1.0, last / max(before, 1e-300))
+        gap = self.typical_gap if self.typical_gap > 0 else 0.15 * self._scale
+        return predicted < 2.0 * gap
 
     def query(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distances, indices) of the nearest target within ``d_max`` (inf / -1 where none)."""
-        if self.n_queries == 0:
-            self._query(pts, None, pairs=True)
-        else:
-            moved = np.einsum("ij,ij->i", pts - self.anchor, pts - self.anchor)
-            stale = np.flatnonzero(moved >= self.gap * np.abs(self.gap))
-            if len(stale):
-                # motion shrinks from step to step: once it is below the typical gap, keep gaps
-                small = float(np.sqrt(np.median(moved[stale]))) < self.typical_gap
-                self._query(pts, stale, pairs=small)
-        has = self.idx >= 0
+        if self.anchor is None:  # first call: a plain full query
+            dist, i = _query(self.tree, pts, 1, self.d_max)
+            self.n_queries += len(pts)
+            self.idx = np.where(np.isfinite(dist), i, -1)
+            self.anchor, self._prev, self._own_anchor = pts, pts, False
+            found = dist[np.isfinite(dist)]
+            self._scale = float(np.median(found)) if len(found) else self.d_max
+            return dist, self.idx.copy()
+        self._moves.append(self._step_motion(pts))
+        self._prev = pts
+        diff = pts - self.anchor
+        moved = np.einsum("ij,ij->i", diff, diff)
+        stale = np.flatnonzero(moved >= self.gap * np.abs(self.gap))
+        pairs = self._want_pairs()
+        if len(stale) == len(pts) and not pairs:  # everything moved far: a plain full query
+            dist, i = _query(self.tree, pts, 1, self.d_max)
+            self.n_queries += len(pts)
+            self.idx = np.where(np.isfinite(dist), i, -1)
+            self.gap.fill(-1.0)
+            self.anchor, self._own_anchor = pts, False
+            found = dist[np.isfinite(dist)]
+            self._scale = float(np.median(found)) if len(found) else self.d_max
+            return dist, self.idx.copy()
+        if len(stale):
+            q = pts[stale]
+            self.n_queries += len(q)
+            if pairs:
+                d, i = _query(self.tree, q, 2, self.bound)
+                d1, d2 = d[:, 0], np.minimum(d[:, 1], self.bound)
+                found = np.isfinite(d1)
+                gap = np.where(found, 0.5 * (d2 - np.where(found, d1, 0.0)), self.bound - self.d_max)
+                idx = np.where(found, i[:, 0], -1)
+            else:
+                d1, i1 = _query(self.tree, q, 1, self.d_max)
+                idx = np.where(np.isfinite(d1), i1, -1)
+                gap = np.full(len(q), -1.0)
+            if not self._own_anchor:
+                self.anchor, self._own_anchor = self.anchor.copy(), True
+            self.idx[stale], self.gap[stale], self.anchor[stale] = idx, gap, q
+            if pairs:
+                g = self.gap[::8]
+                g = g[g >= 0]
+                self.typical_gap = float(np.median(g)) if len(g) else self.typical_gap
+        has = np.flatnonzero(self.idx >= 0)
         dist = np.full(len(pts), np.inf)
         diff = pts[has] - self.target[self.idx[has]]
-        dist[has] = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        inl = dist <= self.d_max
-        dist[~inl] = np.inf
-        return dist, np.where(inl, self.idx, -1)
+        dh = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        dist[has] = dh
+        out = self.idx.copy()
+        far = has[dh > self.d_max]
+        dist[far], out[far] = np.inf, -1
+        return dist, out
+
+
+class LazyNormals:
+    """Target normals (eq. 9: PCA of the ``k`` nearest target points) estimated on first use.
+
+    ICP needs the normals of the target points that become correspondences only, often a fraction of
+    the target (e.g. the part of a growing model a new view overlaps); each is computed once, with the
+    same neighbours and eigen-solver as :func:`~.denoise.pca_normals`. ``table[j]`` is
+    ``(n_j, n_j . t_j)`` for the points estimated so far.
+    """
+
+    def __init__(self, target: np.ndarray, tree: cKDTree, k: int = 20):
+        self.target, self.tree, self.k = target, tree, min(int(k), len(target))
+        self.table = np.empty((len(target), 4))
+        self.known = np.zeros(len(target), dtype=bool)
+        self.n_estimated = 0
+
+    def ensure(self, j: np.ndarray) -> None:
+        need = np.zeros(len(self.target), dtype=bool)
+        need[j] = True
+        need &= ~self.known
+        miss = np.flatnonzero(need)
+        if len(miss):
+            n = _knn_normals(self.target, self.tree, self.k, miss)
+            self.table[miss, :3] = n
+            self.table[miss, 3] = np.einsum("ij,ij->i", n, self.target[miss])
+            self.known[miss] = True
+            self.n_estimated += len(miss)
+
+
+def _normal_table(Tg: np.ndarray, Nt: np.ndarray) -> np.ndarray:
+    table = np.empty((len(Tg), 4))
+    table[:, :3] = Nt
+    table[:, 3] = np.einsum("ij,ij->i", Nt, Tg)
+    return table
 
 
 def linear_icp(
@@ -189,14 +306,15 @@ def linear_icp(
     """Register ``source`` onto ``target`` by linear point-to-plane ICP (paper 000, eqs. 2-8).
 
     ``init`` is the initial ``T_target_source`` (the kinematics + hand-eye guess, eq. 1).
-    ``target_normals`` default to PCA normals of the ``normal_k`` nearest target points (eq. 9).
+    ``target_normals`` default to PCA normals of the ``normal_k`` nearest target points (eq. 9),
+    estimated only for the target points that become correspondences.
     Stops when the change of the fitness (a ratio) and of the inlier RMSE (m) from one iteration to
     the next both fall below ``tolerance`` (Open3D's criterion), when the update is smaller than
     ``tolerance`` (rad and m), or after ``max_iterations``.
     ``robust`` = "huber" | "tukey" re-weights the residuals (scale ``robust_scale`` m, or adaptive).
     ``target_tree`` lets a caller reuse a ``cKDTree`` of ``target``.
     """
-    S = as_points(source, "ICP source", min_points=3)
+    S = np.ascontiguousarray(as_points(source, "ICP source", min_points=3))
     Tg = as_points(target, "ICP target", min_points=3)
     d_max = float(max_correspondence_distance)
     if not np.isfinite(d_max) or d_max <= 0:
@@ -211,8 +329,16 @@ def linear_icp(
     if max_iterations < 1:
         raise DataError(f"max_iterations must be >= 1, got {max_iterations}", "pass max_iterations >= 1")
     T = _check_transform(init, "ICP initial transform").copy()
+    if target_tree is not None and target_tree.n != len(Tg):
+        raise DataError(
+            f"target_tree holds {target_tree.n} points, the target {len(Tg)}",
+            "pass a cKDTree built on this target, or target_tree=None",
+        )
+    tree = target_tree if target_tree is not None else cKDTree(Tg, leafsize=32)
+    lazy = None
     if target_normals is None:
-        Nt = pca_normals(Tg, k=normal_k)
+        lazy = LazyNormals(Tg, tree, normal_k)
+        table = lazy.table
     else:
         Nt = np.asarray(target_normals, dtype=float)
         if Nt.shape != Tg.shape or not np.all(np.isfinite(Nt)):
@@ -220,27 +346,36 @@ def linear_icp(
                 f"target normals must be a finite {Tg.shape} array, got shape {Nt.shape}",
                 "pass one normal per target point, or target_normals=None to estimate them",
             )
-    tree = target_tree if target_tree is not None else cKDTree(Tg, leafsize=32)
+        table = _normal_table(Tg, Nt)  # (n, n . t) per target point: one gather per iteration
     cache = NearestCache(tree, Tg, d_max, len(S))
-    n_target = len(Tg)
+    n_target, n_source = len(Tg), len(S)
 
     history: list[dict] = []
     converged = False
     prev: tuple[float, float] | None = None
     last = None
+    dist0 = dist = None
     for it in range(max_iterations + 1):
-        Ss = S @ T[:3, :3].T + T[:3, 3]
+        Ss = np.einsum("ij,kj->ik", S, T[:3, :3])  # not BLAS (see _solve)
+        Ss += T[:3, 3]
         dist, idx = cache.query(Ss)
-        inl = np.isfinite(dist)
-        n_in = int(inl.sum())
-        fit = n_in / n_target
-        frac = n_in / len(S)
-        rmse = float(np.sqrt(np.mean(dist[inl] ** 2))) if n_in else 0.0
+        dist0 = dist if dist0 is None else dist0
+        if (idx >= 0).all():
+            n_in, s_in, j, d_in = n_source, Ss, idx, dist
+        else:
+            sel = np.flatnonzero(idx >= 0)
+            n_in, s_in, j, d_in = len(sel), Ss[sel], idx[sel], dist[sel]
+        fit, frac = n_in / n_target, n_in / n_source
+        rmse = float(np.sqrt(np.dot(d_in, d_in) / n_in)) if n_in else 0.0
+        prmse = 0.0
         if n_in:
-            s_in, t_in, n_in_ = Ss[inl], Tg[idx[inl]], Nt[idx[inl]]
-            res = np.einsum("ij,ij->i", s_in - t_in, n_in_)
-            prmse = float(np.sqrt(np.mean(res**2)))
-        last = (fit, frac, rmse, prmse if n_in else 0.0)
+            if lazy is not None:
+                lazy.ensure(j)
+            nc = table[j]
+            res = np.einsum("ij,ij->i", s_in, nc[:, :3])
+            res -= nc[:, 3]  # (s - t) . n, the point-to-plane residual
+            prmse = float(np.sqrt(np.dot(res, res) / n_in))
+        last = (fit, frac, rmse, prmse)
         if prev is not None:
             # as Open3D: changes of the fitness (a ratio) and of the inlier RMSE (m) both below tolerance
             if abs(fit - prev[0]) < tolerance and abs(rmse - prev[1]) < tolerance:
@@ -248,9 +383,8 @@ def linear_icp(
         if converged or it == max_iterations or n_in < 6:
             break
         w = _robust_weights(res, robust, robust_scale) if robust else None
-        x = point_to_plane_step(s_in, t_in, n_in_, w)
-        step = _step_matrix(x, update)
-        T = step @ T
+        x = _solve(_system_rows(s_in, nc[:, :3], -res), w, 1e-10)
+        T = _step_matrix(x, update) @ T
         T[:3, :3] = orthonormalize(T[:3, :3])
         d_rot, d_tr = float(np.linalg.norm(x[:3])), float(np.linalg.norm(x[3:]))
         history.append(
@@ -259,7 +393,7 @@ def linear_icp(
                 fitness=fit,
                 inlier_fraction=frac,
                 inlier_rmse=rmse,
-                plane_rmse=last[3],
+                plane_rmse=prmse,
                 n_inliers=n_in,
                 step_rotation=d_rot,
                 step_translation=d_tr,
@@ -283,4 +417,6 @@ def linear_icp(
         inlier_fraction=frac,
         plane_rmse=prmse,
         history=history,
+        distances=dist,
+        initial_distances=dist0,
     )

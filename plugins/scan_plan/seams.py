@@ -37,6 +37,8 @@ from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spannin
 from scipy.spatial import cKDTree
 from weldcell.sdk.errors import DataError
 
+from .denoise import NeighbourTable, knn_table, largest_eigvec, masked_covariance, offsets, smallest_eigvec
+
 #: per-point class labels of :attr:`SeamExtraction.labels`
 NONE, CONCAVE, GROOVE, CONVEX, BOUNDARY, WEAK = 0, 1, 2, 3, 4, 5
 LABEL_NAMES = {
@@ -139,24 +141,52 @@ class Neighbourhood:
     r_eff: np.ndarray
 
 
-def adaptive_neighbourhood(P: np.ndarray, tree: cKDTree, r: float, m: int, k_max: int) -> Neighbourhood:
+def adaptive_neighbourhood(
+    P: np.ndarray,
+    tree: cKDTree,
+    r: float,
+    m: int,
+    k_max: int,
+    table: NeighbourTable | None = None,
+) -> Neighbourhood:
     """Eq. 11: ``N_r(p) = {q : |q - p| < r}``, grown to the ``m`` nearest where fewer lie within ``r``.
 
-    At most ``k_max`` neighbours are kept (the nearest ones) so every array has a fixed width.
+    At most ``k_max`` neighbours are kept (the nearest ones) so every array has a fixed width. The
+    neighbours come from ``table`` (a :class:`NeighbourTable` of these points with at least ``k_max``
+    neighbours within at least ``r``) or from one search bounded at ``2 r``; rows that hold fewer than
+    ``m`` neighbours are searched again without a bound. Columns are not sorted by distance; the
+    members are marked by ``valid``.
     """
     k = int(min(max(k_max, m), len(P) - 1))
-    dist, idx = tree.query(P, k=k + 1, workers=2)
-    dist, idx = dist[:, 1:], idx[:, 1:]
-    valid = (dist < r) | (np.arange(k) < m)[None, :]
-    r_eff = np.maximum(r, dist[:, m - 1])
+    if table is None or table.radius < r or table.k < k:
+        table = knn_table(P, k, radius=2.0 * r, tree=tree)
+    idx, dist = table.idx[:, 1 : k + 1], table.dist[:, 1 : k + 1]
+    finite = np.isfinite(dist)
+    few = np.flatnonzero(finite.sum(axis=1) < m)
+    if len(few):  # not m neighbours within the table's reach: search those rows without a bound
+        d_f, i_f = tree.query(P[few], k=k + 1, workers=-1)
+        idx, dist = idx.copy(), dist.copy()
+        idx[few], dist[few] = i_f[:, 1:], d_f[:, 1:]
+    # the m nearest of each row (the row holds every point within the table's reach, nearest first)
+    d_m = np.partition(dist, m - 1, axis=1)[:, m - 1]
+    valid = (dist < r) | (dist <= d_m[:, None])
+    r_eff = np.maximum(r, d_m)
+    width = int(valid.sum(axis=1).max())
+    if width < k:  # drop the columns no row needs (the members first): narrower arrays below
+        keep = np.argpartition(np.where(valid, dist, np.inf), width - 1, axis=1)[:, :width]
+        idx, dist, valid = (np.take_along_axis(a, keep, 1) for a in (idx, dist, valid))
+    fin = np.isfinite(dist)
+    if not fin.all():  # entries beyond the search bound (never members): finite, for the masked sums
+        dist = np.where(fin, dist, 2.0 * float(np.max(np.where(fin, dist, 0.0))) + r)
     return Neighbourhood(idx, dist, valid, r_eff)
 
 
 def edge_intensity(P: np.ndarray, nb: Neighbourhood) -> np.ndarray:
     """Eq. 12: ``I_p = |p - (1/n) sum q_i| / r`` with the neighbourhood's (grown) radius as ``r``."""
     w = nb.valid.astype(float)
-    centroid = np.einsum("nk,nkj->nj", w, P[nb.idx]) / w.sum(axis=1, keepdims=True)
-    return np.linalg.norm(P - centroid, axis=1) / nb.r_eff
+    inv = 1.0 / w.sum(axis=1)
+    s = [np.einsum("nk,nk->n", w, d) * inv for d in offsets(P, nb.idx)]  # centroid - p
+    return np.sqrt(s[0] ** 2 + s[1] ** 2 + s[2] ** 2) / nb.r_eff
 
 
 def intensity_gradient(P: np.ndarray, intensity: np.ndarray, nb: Neighbourhood) -> np.ndarray:
@@ -168,31 +198,62 @@ def intensity_gradient(P: np.ndarray, intensity: np.ndarray, nb: Neighbourhood) 
     ``(I_i - I_p) / d``, projected on axis k (``delta_k / d``), and take the neighbour of largest
     magnitude (sign kept), which equals the caption's quotient for a neighbour on the axis.
     """
-    dI = intensity[nb.idx] - intensity[:, None]
-    delta = P[nb.idx] - P[:, None, :]
-    slope = dI[..., None] * delta / np.maximum(nb.dist[..., None], 1e-12) ** 2
-    slope = np.where(nb.valid[..., None], slope, 0.0)
-    j = np.abs(slope).argmax(axis=1)
-    return np.take_along_axis(slope, j[:, None, :], axis=1)[:, 0, :]
+    dI = np.where(nb.valid, intensity[nb.idx] - intensity[:, None], 0.0)
+    f = dI / np.maximum(nb.dist, 1e-12) ** 2
+    g = np.empty((len(P), 3))
+    for k, delta in enumerate(offsets(P, nb.idx)):
+        slope = f * delta
+        j = np.abs(slope).argmax(axis=1)
+        g[:, k] = np.take_along_axis(slope, j[:, None], axis=1)[:, 0]
+    return g
 
 
-def structure_tensor(grad: np.ndarray, nb: Neighbourhood, sigma: float | None = None) -> np.ndarray:
+def structure_tensor(
+    grad: np.ndarray,
+    nb: Neighbourhood,
+    sigma: float | None = None,
+    rows: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
     """Eqs. 14-15 smoothed with eq. 17: ``H_p = sum_{q in N_r(p) + p} G(p, q) g_q g_q^T / sum G``.
 
     ``G`` is the Gaussian of eq. 17 with, unless ``sigma`` (m) is given, the paper's choice: the
-    standard deviation of the distances from p to its neighbours. Returns (N, 3, 3).
+    standard deviation of the distances from p to its neighbours. Returns (N, 3, 3), or (len(rows), 3, 3)
+    for the points ``rows`` only (each row computed exactly as in the full call). ``weights``: the
+    :func:`tensor_weights` when already computed.
     """
+    w = tensor_weights(nb, sigma) if weights is None else weights
+    idx = nb.idx
+    if rows is not None:
+        w, idx, grad_p = w[rows], idx[rows], grad[rows]
+    else:
+        grad_p = grad
+    gg = grad[:, :, None] * grad[:, None, :]
+    H = grad_p[:, :, None] * grad_p[:, None, :]
+    H = H + (w[:, None, :] @ gg.reshape(-1, 9)[idx]).reshape(-1, 3, 3)
+    return H / (1.0 + w.sum(axis=1))[:, None, None]
+
+
+def tensor_weights(nb: Neighbourhood, sigma: float | None = None) -> np.ndarray:
+    """Eq. 17 weights ``G(p, q)`` (N, K) of the neighbours (0 outside N_r(p)), up to the constant
+    ``1/(sigma sqrt(2 pi))`` (it cancels in eq. 15's normalisation)."""
     if sigma is None:
         cnt = nb.valid.sum(1)
         mu = (nb.dist * nb.valid).sum(1) / cnt
         s = np.sqrt(np.maximum((nb.dist**2 * nb.valid).sum(1) / cnt - mu**2, 0.0))
         s = np.maximum(s, 1e-3 * nb.r_eff)
     else:
-        s = np.full(len(grad), float(sigma))
-    w = np.exp(-(nb.dist**2) / (2.0 * s[:, None] ** 2)) * nb.valid  # G(o, i) up to 1/(s sqrt(2 pi))
-    gg = grad[:, :, None] * grad[:, None, :]
-    H = gg + (w[:, None, :] @ gg[nb.idx].reshape(len(w), -1, 9)).reshape(-1, 3, 3)
-    return H / (1.0 + w.sum(axis=1))[:, None, None]
+        s = np.full(len(nb.idx), float(sigma))
+    return np.exp(-(nb.dist**2) / (2.0 * s[:, None] ** 2)) * nb.valid
+
+
+def tensor_trace(
+    grad: np.ndarray, nb: Neighbourhood, sigma: float | None = None, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """``Tr(H_p)`` (N,) of eq. 15 without forming H: ``(|g_p|^2 + sum G |g_q|^2) / (1 + sum G)``."""
+    w = tensor_weights(nb, sigma) if weights is None else weights
+    g2 = np.einsum("ij,ij->i", grad, grad)
+    return (g2 + np.einsum("nk,nk->n", w, g2[nb.idx])) / (1.0 + w.sum(axis=1))
 
 
 def edge_ratio(H: np.ndarray, floor: float = 1.0) -> np.ndarray:
@@ -203,12 +264,23 @@ def edge_ratio(H: np.ndarray, floor: float = 1.0) -> np.ndarray:
     noisy patch whose gradients all lie in its plane has ``Det -> 0`` and passes any threshold).
     """
     tr = np.trace(H, axis1=1, axis2=2)
-    eps = floor * float(np.median(tr)) / 3.0 if floor > 0 else 0.0
-    eps = max(eps, 1e-12 * float(np.max(tr, initial=0.0)), 1e-300)
-    H = H + eps * np.eye(3)
-    tr = tr + 3.0 * eps
-    det = np.linalg.det(H)
-    with np.errstate(divide="ignore", over="ignore"):
+    return _floored_ratio(H, noise_floor(tr, floor))
+
+
+def noise_floor(trace: np.ndarray, floor: float) -> float:
+    """The diagonal term ``floor * median(Tr H) / 3`` added to every H before eq. 16 (see
+    :func:`edge_ratio`); ``trace`` holds Tr(H) of *all* points."""
+    eps = floor * float(np.median(trace)) / 3.0 if floor > 0 else 0.0
+    return max(eps, 1e-12 * float(np.max(trace, initial=0.0)), 1e-300)
+
+
+def _floored_ratio(H: np.ndarray, eps: float) -> np.ndarray:
+    """Eq. 16 on ``H + eps I``: ``Tr^3 / Det`` with Det in closed form (inf where Det <= 0)."""
+    a, b, c = H[:, 0, 0] + eps, H[:, 1, 1] + eps, H[:, 2, 2] + eps
+    d, e, f = H[:, 0, 1], H[:, 0, 2], H[:, 1, 2]
+    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+    tr = a + b + c
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
         return np.where(det > 0, tr**3 / det, np.inf)
 
 
@@ -221,19 +293,27 @@ def point_normals(
     k: int = 10,
     oriented: np.ndarray | None = None,
     up: np.ndarray | None = None,
+    table: NeighbourTable | None = None,
 ) -> np.ndarray:
-    """Unit PCA normals from the ``k`` nearest neighbours, oriented.
+    """Unit PCA normals from the ``k`` nearest neighbours (the point itself included), oriented.
+
+    ``table`` (a :class:`NeighbourTable` of ``P``) replaces the KD-tree query where its rows hold at
+    least ``k - 1`` neighbours (the nearest ones are picked from the row).
 
     Orientation: along ``oriented`` (given normals, e.g. facing the sensor) when given; otherwise the
     weld-cell heuristic: towards ``up`` where the surface is not steep, and for steep (wall) normals
     away from the vertical axis through the cloud centroid (outward for a part standing on a table).
     """
     k = int(min(k, len(P)))
-    _, idx = tree.query(P, k=k, workers=2)
-    Q = P[idx]
-    D = Q - Q.mean(axis=1, keepdims=True)
-    C = D.transpose(0, 2, 1) @ D
-    n = np.linalg.eigh(C)[1][:, :, 0]
+    if table is not None and table.k >= k - 1:
+        part = np.argpartition(table.dist[:, 1:], k - 2, axis=1)[:, : k - 1] + 1
+        idx = np.concatenate([table.idx[:, :1], np.take_along_axis(table.idx, part, 1)], axis=1)
+        short = np.flatnonzero(~np.isfinite(np.take_along_axis(table.dist, part, 1)).all(axis=1))
+        if len(short):
+            idx[short] = tree.query(P[short], k=k, workers=-1)[1]
+    else:
+        _, idx = tree.query(P, k=k, workers=-1)
+    n = smallest_eigvec(masked_covariance(offsets(P, idx), np.ones(idx.shape))[0])
     if oriented is not None:
         ref = oriented
     else:
@@ -247,33 +327,61 @@ def point_normals(
     return n
 
 
+def _dot3(U: tuple[np.ndarray, ...], v: np.ndarray) -> np.ndarray:
+    """Row-wise dot products (B, K) of component arrays ``U`` = (x, y, z), each (B, K), with ``v`` (B, 3)."""
+    return U[0] * v[:, :1] + U[1] * v[:, 1:2] + U[2] * v[:, 2:]
+
+
+def _wsum3(w: np.ndarray, U: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Weighted row sums (B, 3) of component arrays ``U`` with weights ``w`` (B, K)."""
+    return np.stack([np.einsum("bk,bk->b", w, u) for u in U], axis=1)
+
+
 def two_sides(nbr_normals: np.ndarray, valid: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, ...]:
     """Split each row of neighbour normals (B, K, 3) into two sides (2-means on the unit sphere).
 
     Starts from the principal axis of the normal scatter; returns ``(n_a, n_b, in_a)`` with side
     normals (B, 3) and the membership (B, K) of side a.
     """
+    U = tuple(np.ascontiguousarray(nbr_normals[..., j]) for j in range(3))
+    return _two_sides(U, valid, iterations)
+
+
+def _two_sides(U: tuple[np.ndarray, ...], valid: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, ...]:
+    """:func:`two_sides` on the normals' components ``U`` = (x, y, z), each (B, K)."""
     w = valid.astype(float)
-    mean = np.einsum("bk,bkj->bj", w, nbr_normals) / np.maximum(w.sum(1), 1)[:, None]
-    D = (nbr_normals - mean[:, None, :]) * w[..., None]
-    C = D.transpose(0, 2, 1) @ D
-    e = np.linalg.eigh(C)[1][:, :, 2]
-    in_a = np.einsum("bkj,bj->bk", nbr_normals - mean[:, None, :], e) > 0
+    C, cnt = masked_covariance(U, w)
+    mean = _wsum3(w, U) / np.maximum(cnt, 1)[:, None]
+    e = largest_eigvec(C)
+    in_a = _dot3(U, e) > (mean * e).sum(1)[:, None]
     for _ in range(iterations):
-        wa, wb = w * in_a, w * ~in_a
-        na = _unit(np.einsum("bk,bkj->bj", wa, nbr_normals))
-        nbv = _unit(np.einsum("bk,bkj->bj", wb, nbr_normals))
-        in_a = np.einsum("bkj,bj->bk", nbr_normals, na) >= np.einsum("bkj,bj->bk", nbr_normals, nbv)
+        na = _unit(_wsum3(w * in_a, U))
+        nbv = _unit(_wsum3(w * ~in_a, U))
+        in_a = _dot3(U, na) >= _dot3(U, nbv)
     return na, nbv, in_a
 
 
-def _sides_at(P: np.ndarray, N: np.ndarray, tree: cKDTree, X: np.ndarray, radius: float, k: int):
+def _sides_at(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    radius: float,
+    k: int,
+    query: tuple[np.ndarray, np.ndarray] | None = None,
+):
+    """Neighbours (at most ``k`` nearest, at least 4, within ``radius``) of the points ``X`` and their
+    2-means split by normal. Returns ``idx, valid, n_a, n_b, in_a, Q`` with ``Q`` the neighbour offsets
+    from X as components (x, y, z). ``query``: a (dist, idx) k-nearest result to reuse."""
     k = int(min(k, len(P)))
-    dist, idx = tree.query(X, k=k, workers=2)
+    dist, idx = tree.query(X, k=k, workers=-1) if query is None else query
     valid = dist <= radius
     valid[:, :4] = True
-    na, nb_, in_a = two_sides(N[idx], valid)
-    return idx, valid, na, nb_, in_a
+    Nt = np.ascontiguousarray(N.T)
+    na, nb_, in_a = _two_sides(tuple(Nt[j][idx] for j in range(3)), valid)
+    Pt = np.ascontiguousarray(P.T)
+    Q = tuple(Pt[j][idx] - X[:, j : j + 1] for j in range(3))
+    return idx, valid, na, nb_, in_a, Q
 
 
 def classify_edges(
@@ -287,6 +395,9 @@ def classify_edges(
     min_crease_angle: float = np.deg2rad(35.0),
     groove_max_angle: float = np.deg2rad(75.0),
     boundary_shift: float = 0.25,
+    min_side_fraction: float = 0.2,
+    viewpoints: np.ndarray | None = None,
+    max_incidence: float = np.deg2rad(75.0),
 ):
     """Class of each candidate edge point (indices ``cand``) from its neighbourhood within ``radius``.
 
@@ -297,25 +408,28 @@ def classify_edges(
     * two planes are fitted to the neighbourhood (:func:`fit_two_planes`); at a concave crease the
       points of each side lie in front of (on the normal side of) the other side's plane -- the air is
       inside the V -- and behind it at a convex one;
+    * a concave crease must have real surface on both sides, else it is a ``boundary`` (the curled,
+      noisy border of a scan seen at grazing incidence looks like a narrow V): each side holds at least
+      ``min_side_fraction`` of the neighbours, and, when the camera positions ``viewpoints`` (V, 3) are
+      given, each side's normal faces some camera at an incidence below ``max_incidence``;
     * concave creases whose included angle (pi - angle(n_a, n_b)) is below ``groove_max_angle`` are
       ``groove`` (butt V-grooves), the others ``concave`` (fillet, lap, corner roots).
 
     Returns ``labels`` (M,) and the approach directions ``-(n_a + n_b)/|.|`` (M, 3).
     """
     X = P[cand]
-    idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, k)
-    Q = P[idx]
-    na, da, nbv, db, _, _ = fit_two_planes(Q, valid, na, nbv, in_a)
+    idx, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k)
+    na, da, nbv, db, _, _ = _fit_two_planes(Q, valid, na, nbv, in_a)
     # re-split by plane distance, then: is each side in front of (concave) or behind (convex) the other?
-    ra = np.einsum("bkj,bj->bk", Q, na) - da[:, None]
-    rb = np.einsum("bkj,bj->bk", Q, nbv) - db[:, None]
+    ra = _dot3(Q, na) - da[:, None]
+    rb = _dot3(Q, nbv) - db[:, None]
     on_a = valid & (np.abs(ra) <= np.abs(rb))
     on_b = valid & ~on_a
     front = np.where(on_a, rb, 0).sum(1) / np.maximum(on_a.sum(1), 1) + np.where(on_b, ra, 0).sum(
         1
     ) / np.maximum(on_b.sum(1), 1)
     w = valid.astype(float)
-    v = np.einsum("bk,bkj->bj", w, Q) / w.sum(1)[:, None] - X
+    v = _wsum3(w, Q) / w.sum(1)[:, None]  # centroid - X
     crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
     bis = _unit(na + nbv)
     shift = np.linalg.norm(v - np.einsum("ij,ij->i", v, bis)[:, None] * bis, axis=1) / radius
@@ -324,6 +438,22 @@ def classify_edges(
     labels[flat & (shift > boundary_shift)] = BOUNDARY
     labels[~flat & (front <= 0)] = CONVEX
     concave = ~flat & (front > 0)
+    # a concave crease needs real surface on both sides: a scan border that curls (grazing views, noise)
+    # has a narrow, sparse "second side" -> boundary
+    na_cnt, nb_cnt = on_a.sum(1), on_b.sum(1)
+    one_sided = np.minimum(na_cnt, nb_cnt) < min_side_fraction * np.maximum(na_cnt + nb_cnt, 1)
+    if viewpoints is not None and len(viewpoints):
+        # ... and both sides must have been seen by some camera at less than max_incidence (a side that
+        # faces away from every camera, or is seen only at grazing incidence, is not measured surface)
+        V = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
+        view = V[None, :, :] - X[:, None, :]
+        view /= np.maximum(np.linalg.norm(view, axis=2, keepdims=True), 1e-12)
+        cos_min = np.cos(max_incidence)
+        seen_a = (np.einsum("bvj,bj->bv", view, na) >= cos_min).any(axis=1)
+        seen_b = (np.einsum("bvj,bj->bv", view, nbv) >= cos_min).any(axis=1)
+        one_sided |= ~(seen_a & seen_b)
+    labels[concave & one_sided] = BOUNDARY
+    concave &= ~one_sided
     labels[concave] = np.where(np.pi - crease[concave] < groove_max_angle, GROOVE, CONCAVE)
     return labels, -bis
 
@@ -367,21 +497,33 @@ def fit_two_planes(
     every point to the closer plane (2-plane k-means). Starts from the normal split ``in_a``; plane
     normals keep the orientation of ``n_a`` / ``n_b``. Returns ``(n_a, d_a, n_b, d_b, count_a, count_b)``
     with planes ``n . x = d``."""
+    U = tuple(np.ascontiguousarray(Q[..., j]) for j in range(3))
+    return _fit_two_planes(U, valid, n_a, n_b, in_a, iterations)
+
+
+def _fit_two_planes(
+    U: tuple[np.ndarray, ...],
+    valid: np.ndarray,
+    n_a: np.ndarray,
+    n_b: np.ndarray,
+    in_a: np.ndarray,
+    iterations: int = 3,
+) -> tuple[np.ndarray, ...]:
+    """:func:`fit_two_planes` on the points' components ``U`` = (x, y, z), each (B, K)."""
     out = []
     for _ in range(iterations):
         out = []
         for mask, ref in ((valid & in_a, n_a), (valid & ~in_a, n_b)):
             w = mask.astype(float)
-            cnt = w.sum(1)
-            c = np.einsum("bk,bkj->bj", w, Q) / np.maximum(cnt, 1)[:, None]
-            D = (Q - c[:, None, :]) * w[..., None]
-            n = np.linalg.eigh(D.transpose(0, 2, 1) @ D)[1][:, :, 0]
+            C, cnt = masked_covariance(U, w)
+            c = _wsum3(w, U) / np.maximum(cnt, 1)[:, None]
+            n = smallest_eigvec(C)
             n[np.einsum("ij,ij->i", n, ref) < 0] *= -1.0
             n[cnt < 3] = ref[cnt < 3]
             out.append((n, np.einsum("ij,ij->i", n, c), cnt))
         (na, da, _), (nb, db, _) = out
-        ra = np.abs(np.einsum("bkj,bj->bk", Q, na) - da[:, None])
-        rb = np.abs(np.einsum("bkj,bj->bk", Q, nb) - db[:, None])
+        ra = np.abs(_dot3(U, na) - da[:, None])
+        rb = np.abs(_dot3(U, nb) - db[:, None])
         in_a = ra <= rb
     (na, da, ca), (nb, db, cb) = out
     return na, da, nb, db, ca, cb
@@ -396,6 +538,7 @@ def _refine_on_sides(
     min_crease_angle: float,
     k: int = 256,
     min_side_fraction: float = 0.2,
+    query: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Snap seam nodes onto the intersection line of the two side planes fitted around them.
 
@@ -405,12 +548,12 @@ def _refine_on_sides(
     angle of the joint). Usable: the crease angle is at least ``min_crease_angle`` and both sides hold
     at least ``min_side_fraction`` of the points (a real joint has surface on both sides; the curled,
     noisy border of a scan has a few points only on its "second side")."""
-    idx, valid, na, nbv, in_a = _sides_at(P, N, tree, X, radius, k)
-    na, da, nbv, db, ca, cb = fit_two_planes(P[idx], valid, na, nbv, in_a)
+    _, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
+    na, da, nbv, db, ca, cb = _fit_two_planes(Q, valid, na, nbv, in_a)  # planes n . (x - X) = d
     ok = (ca >= 3) & (cb >= 3) & (np.minimum(ca, cb) >= min_side_fraction * (ca + cb))
     ok &= np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1, 1)) >= min_crease_angle
     A = np.stack([na, nbv], axis=1)  # (B, 2, 3)
-    r = np.stack([np.einsum("ij,ij->i", na, X) - da, np.einsum("ij,ij->i", nbv, X) - db], axis=1)
+    r = np.stack([-da, -db], axis=1)  # signed distances of X from the two planes
     AAt = np.einsum("bij,bkj->bik", A, A)
     AAt[~ok] = np.eye(2)
     lam = np.linalg.solve(AAt, r[..., None])[..., 0]
@@ -442,17 +585,25 @@ def _trim_turning_ends(X: np.ndarray, max_turn: float = np.deg2rad(30.0), max_no
     return slice(a, b)
 
 
-def _orient(X: np.ndarray, A: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic travel direction: open seams along their principal axis (sign: largest component
-    positive); closed seams, and open ones that curl (end-to-end chord under half their length, e.g. a
-    ring with a gap), counter-clockwise seen from the torch (looking along the approach)."""
+def _orient(
+    X: np.ndarray, A: np.ndarray, closed: bool, min_curl: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
+    """Deterministic travel direction, one convention for every piece of a curved seam.
+
+    Closed seams, and open ones that curve (the area swept about their centroid is at least
+    ``min_curl`` x length^2, e.g. an arc of more than ~15 deg of a pipe junction), run counter-clockwise
+    seen from the torch (looking along the mean approach), so the open pieces of a closed curve travel
+    the same way round as the whole loop would. Straight open seams run along their principal axis
+    (sign: largest component positive).
+    """
     length = float(np.linalg.norm(np.diff(X, axis=0), axis=1).sum())
-    if closed or float(np.linalg.norm(X[-1] - X[0])) < 0.5 * length:
-        c = X - X.mean(axis=0)
-        area = 0.5 * np.cross(c, np.roll(c, -1, axis=0)).sum(axis=0)
-        flip = float(area @ -A.mean(axis=0)) < 0
+    c = X - X.mean(axis=0)
+    area = 0.5 * np.cross(c, np.roll(c, -1, axis=0)).sum(axis=0)  # closed by the chord when open
+    axis = -_unit(A.mean(axis=0))
+    about = float(area @ axis)
+    if closed or abs(about) >= min_curl * length**2:
+        flip = about < 0
     else:
-        c = X - X.mean(axis=0)
         u = np.linalg.svd(c, full_matrices=False)[2][0]
         u = u * np.sign(u[np.argmax(np.abs(u))])
         flip = float((X[-1] - X[0]) @ u) < 0
@@ -473,9 +624,10 @@ def _refine_nodes(
     bisector of two planes fitted to a curved wall is still the local one), the position from those
     within ``side_radius`` where that fit is usable too (small: planes fitted to a strongly curved wall
     over a large radius sit inside it and pull the intersection line inwards)."""
-    X2, A, ok, crease = _refine_on_sides(P, N, tree, X, approach_radius, min_crease_angle)
+    query = tree.query(X, k=int(min(256, len(P))), workers=-1)  # one search for both scales
+    X2, A, ok, crease = _refine_on_sides(P, N, tree, X, approach_radius, min_crease_angle, query=query)
     if approach_radius > side_radius:
-        Xs, _, ok_s, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle)
+        Xs, _, ok_s, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle, query=query)
         X2 = np.where((ok & ok_s)[:, None], Xs, X2)
     return X2, A, ok, crease
 
@@ -758,14 +910,22 @@ def chain_seams(
     mst = minimum_spanning_tree(G + G.T)
     sizes = np.bincount(comp, minlength=n_comp)
     pieces = []
+    raw = []
     for c_id in np.flatnonzero(sizes >= 5)[np.argsort(-sizes[sizes >= 5])]:
         piece = _cluster_piece(X, approach, np.flatnonzero(comp == c_id), mst, eps, spacing, weld_labels)
-        if piece is None:
-            continue
-        if refine:
-            Xs, A_fit, ok, crease = _refine_nodes(
-                P, N, tree, piece.X, side_radius, approach_radius, min_crease_angle
-            )
+        if piece is not None:
+            raw.append(piece)
+    if refine and raw:  # all pieces' nodes in one batch (one search, one set of plane fits)
+        cuts = np.cumsum([len(p.X) for p in raw])[:-1]
+        fits = _refine_nodes(
+            P, N, tree, np.vstack([p.X for p in raw]), side_radius, approach_radius, min_crease_angle
+        )
+        per_piece = zip(*(np.split(a, cuts) for a in fits), strict=True)
+    else:
+        per_piece = [None] * len(raw)
+    for piece, fit in zip(raw, per_piece, strict=True):
+        if fit is not None:
+            Xs, A_fit, ok, crease = fit
             if ok.mean() < min_fit_fraction:  # no two distinct side planes along most of it: not a joint
                 continue
             As = np.where(ok[:, None], A_fit, piece.A)
@@ -835,6 +995,18 @@ def chain_seams(
 # ----------------------------------------------------------------------------- public entry point
 
 
+@dataclass
+class EdgeScores:
+    """Eqs. 11-17 on a cloud: ``intensity`` (N,) eq. 12, ``ratio`` (N,) eq. 16 (NaN where not computed,
+    see :func:`edge_scores`), the radius ``r``, the KD-tree and the eq. 11 neighbourhood ``nb``."""
+
+    intensity: np.ndarray
+    ratio: np.ndarray
+    radius: float
+    tree: cKDTree
+    nb: Neighbourhood
+
+
 def edge_scores(
     points: np.ndarray,
     *,
@@ -844,21 +1016,59 @@ def edge_scores(
     k_max: int = 32,
     sigma: float | None = None,
     floor: float = 1.0,
-):
-    """Eqs. 11-17 on ``points``: returns ``(intensity, ratio, r, tree)``."""
+    min_intensity: float = 0.0,
+    neighbours: NeighbourTable | None = None,
+) -> EdgeScores:
+    """Eqs. 11-17 on ``points``.
+
+    The edge test is ``ratio >= t`` *and* ``intensity >= min_intensity``, so the structure tensor and
+    eq. 16 are evaluated only at the points that pass the intensity bound (NaN elsewhere in ``ratio``);
+    the gradients (eq. 13) and ``Tr(H)`` (for the noise floor, a median over the whole cloud) of all
+    points are still computed, so the ratio of every evaluated point is exactly that of the full
+    computation (``min_intensity=0`` evaluates all points).
+
+    ``neighbours``: a :class:`~weldcell.plugins.scan_plan.denoise.NeighbourTable` of these points (the
+    one the denoising stage computed) replaces the KD-tree searches when it reaches far enough (its
+    radius at least r); a table of other points or too short a reach is not used.
+    """
     P = _as_points(points, m)
     tree = cKDTree(P)
+    table = _usable_table(P, neighbours)
     if radius is None:
-        d, _ = tree.query(P, k=2, workers=2)
-        spacing = float(np.median(d[:, 1]))
+        if table is not None:
+            d1 = table.dist[:, 1:].min(axis=1)
+            d1 = d1[np.isfinite(d1)]
+        else:
+            d1 = tree.query(P, k=2, workers=-1)[0][:, 1]
+        spacing = float(np.median(d1)) if len(d1) else 0.0
         if spacing <= 0:
             raise DataError("the cloud has duplicate points only", "pass a cloud of a real surface")
         radius = radius_factor * spacing
-    nb = adaptive_neighbourhood(P, tree, float(radius), m, k_max)
+    nb = adaptive_neighbourhood(P, tree, float(radius), m, k_max, table)
     I = edge_intensity(P, nb)
     g = intensity_gradient(P, I, nb)
-    H = structure_tensor(g, nb, sigma)
-    return I, edge_ratio(H, floor), float(radius), tree
+    w = tensor_weights(nb, sigma)
+    eps = noise_floor(tensor_trace(g, nb, weights=w), floor)
+    rows = np.flatnonzero(I >= min_intensity)
+    ratio = np.full(len(P), np.nan)
+    ratio[rows] = _floored_ratio(structure_tensor(g, nb, rows=rows, weights=w), eps)
+    return EdgeScores(I, ratio, float(radius), tree, nb)
+
+
+def _usable_table(P: np.ndarray, table: NeighbourTable | None) -> NeighbourTable | None:
+    """``table`` when it belongs to ``P`` (same array, or equal points), else None."""
+    if table is None:
+        return None
+    if not isinstance(table, NeighbourTable):
+        raise DataError(
+            f"neighbours must be a NeighbourTable, got {type(table).__name__}",
+            "build it with weldcell.plugins.scan_plan.denoise.knn_table(points, k, radius)",
+        )
+    if table.points is P:
+        return table
+    if table.idx.shape[0] == len(P) and np.array_equal(table.points, P):
+        return table
+    return None
 
 
 def extract_seams(
@@ -886,6 +1096,9 @@ def extract_seams(
     fit_radius: float | None = None,
     max_gap: float = 0.03,
     smooth_length: float = 0.06,
+    neighbours: NeighbourTable | None = None,
+    viewpoints: np.ndarray | None = None,
+    max_incidence: float = np.deg2rad(75.0),
 ) -> SeamExtraction:
     """Edge points (eqs. 11-17) and ordered weld seams of a cloud in metres.
 
@@ -908,6 +1121,12 @@ def extract_seams(
             seam points are snapped with fits at ``class_radius_factor * r``.
         max_gap: pieces of one seam whose ends are at most this far apart (m) and collinear are
             chained across the gap (0 disables). smooth_length: smoothing window along the seam (m).
+        neighbours: optional :class:`~weldcell.plugins.scan_plan.denoise.NeighbourTable` of ``points``
+            (the denoising stage's shared search); replaces the KD-tree searches of eq. 11 and of the
+            normals when it reaches at least r.
+        viewpoints: optional (V, 3) camera positions of the scans (the job's ``meta["viewpoints"]``):
+            a concave crease counts only when both its sides face a camera at less than
+            ``max_incidence`` (rad) -- see :func:`classify_edges`.
     """
     if m < 3:
         raise DataError(f"m must be >= 3, got {m}", "use m of about 10-20 neighbours")
@@ -924,10 +1143,21 @@ def extract_seams(
         raise DataError(f"max_gap must be >= 0 m, got {max_gap}", "pass e.g. 0.03 (0 disables bridging)")
     _positive(smooth_length, "smooth_length")
     P = _as_points(points, m)
-    I, score, r, tree = edge_scores(
-        P, m=m, radius=radius, radius_factor=radius_factor, k_max=k_max, sigma=sigma, floor=floor
+    es = edge_scores(
+        P,
+        m=m,
+        radius=radius,
+        radius_factor=radius_factor,
+        k_max=k_max,
+        sigma=sigma,
+        floor=floor,
+        min_intensity=min_intensity,
+        neighbours=neighbours,
     )
-    edge = (score >= t) & (I >= min_intensity)
+    I, score, r, tree = es.intensity, es.ratio, es.radius, es.tree
+    table = _usable_table(P, neighbours)
+    with np.errstate(invalid="ignore"):
+        edge = (score >= t) & (I >= min_intensity)
     oriented = None
     if normals is not None:
         oriented = np.asarray(normals, dtype=float)
@@ -936,14 +1166,22 @@ def extract_seams(
                 f"normals must be a finite {P.shape} array, got {oriented.shape}",
                 "pass one normal per point or normals=None",
             )
-    N = point_normals(P, tree, 10, oriented, np.asarray(up, dtype=float))
+    N = point_normals(P, tree, 10, oriented, np.asarray(up, dtype=float), table)
     labels = np.zeros(len(P), dtype=np.int8)
     cand = np.flatnonzero(edge)
     R = class_radius_factor * r
     seams: list[SeamPolyline] = []
     if len(cand):
         lab, appr = classify_edges(
-            P, N, tree, cand, R, min_crease_angle=min_crease_angle, groove_max_angle=groove_max_angle
+            P,
+            N,
+            tree,
+            cand,
+            R,
+            min_crease_angle=min_crease_angle,
+            groove_max_angle=groove_max_angle,
+            viewpoints=viewpoints,
+            max_incidence=max_incidence,
         )
         labels[cand] = lab
         keep = np.isin(lab, [WELDABLE[j] for j in joints])

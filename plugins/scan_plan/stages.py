@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
+from scipy.spatial import cKDTree
 from weldcell.sdk.cloud import PointCloud, check_cloud
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length
@@ -76,12 +77,29 @@ class BilateralSettings(Settings):
     )
 
 
+#: ``PointCloud.meta`` key of the :class:`~weldcell.plugins.scan_plan.denoise.NeighbourTable` the denoiser
+#: leaves for the seam stage (one shared neighbour search; used only for that very points array)
+NEIGHBOURS_META = "scan_plan.neighbours"
+
+
 class BilateralDenoiser:
+    #: neighbours per point of the shared table (the seam stage's ``k_max``)
+    k_table = 32
+    #: points sampled for the spacing estimate of a big raw cloud (the voxel size only)
+    spacing_sample = 20_000
+    #: the shared table holds the neighbours within this multiple of the filter radius
+    table_margin = 1.1
+
     def __init__(self, s: BilateralSettings) -> None:
         self.s = s
 
     def __call__(self, cloud: PointCloud) -> PointCloud:
-        from weldcell.plugins.scan_plan.denoise import bilateral_filter, mean_spacing, voxel_downsample
+        from weldcell.plugins.scan_plan.denoise import (
+            bilateral_filter,
+            knn_table,
+            mean_spacing,
+            voxel_downsample,
+        )
 
         check_cloud(cloud, "cloud to denoise", min_points=10)
         P = cloud.points
@@ -93,14 +111,31 @@ class BilateralDenoiser:
         P = P[keep]
         check_cloud(PointCloud(P), "cloud inside the crop box", min_points=10)
         if self.s.voxel_factor > 0:
-            P = voxel_downsample(P, voxel_size=max(self.s.voxel_factor * mean_spacing(P), self.s.min_voxel))
+            sp = mean_spacing(P, sample=self.spacing_sample)
+            P = voxel_downsample(P, voxel_size=max(self.s.voxel_factor * sp, self.s.min_voxel))
         normals = None
+        meta = dict(cloud.meta)
+        meta.pop(NEIGHBOURS_META, None)
         if self.s.iterations > 0:
-            radius = self.s.radius or 3.0 * mean_spacing(P)
+            tree = cKDTree(P)
+            radius = self.s.radius or 3.0 * mean_spacing(P, sample=self.spacing_sample, tree=tree)
+            # one search for the filter's N_r(p) and the seam stage's eq. 11 (the m = 12 nearest on a
+            # filtered cloud; the margin covers them and the points' moves in the filter)
+            table = knn_table(P, self.k_table, radius=self.table_margin * radius, tree=tree)
+            P = table.points
             P, normals = bilateral_filter(
-                P, radius, sigma_c=self.s.sigma_c, sigma_s=self.s.sigma_s, iterations=self.s.iterations
+                P,
+                radius,
+                sigma_c=self.s.sigma_c,
+                sigma_s=self.s.sigma_s,
+                iterations=self.s.iterations,
+                neighbours=table,
             )
-        return PointCloud(P, normals=normals, frame=cloud.frame, meta=dict(cloud.meta))
+            if self.s.iterations == 1:
+                out = PointCloud(P, normals=normals, frame=cloud.frame, meta=meta)
+                meta[NEIGHBOURS_META] = table.moved_to(out.points)
+                return out
+        return PointCloud(P, normals=normals, frame=cloud.frame, meta=meta)
 
 
 def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
@@ -140,6 +175,8 @@ class EdgeSeamExtractor:
 
         check_cloud(cloud, "cloud for seam extraction", min_points=self.s.m + 1)
         normals = oriented_normals(cloud)
+        table = cloud.meta.get(NEIGHBOURS_META)
+        shared = table is not None and table.matches(cloud.points)
         return extract_seams(
             cloud.points,
             normals,
@@ -151,6 +188,8 @@ class EdgeSeamExtractor:
             joints=tuple(self.s.joints),
             min_seam_length=self.s.min_seam_length,
             spacing=self.s.spacing,
+            neighbours=table if shared else None,
+            viewpoints=cloud.meta.get("viewpoints"),
         )
 
 

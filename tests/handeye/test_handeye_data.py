@@ -178,8 +178,18 @@ def test_ancorasir_reader_converts_unit_mix_and_scalar_first_quaternions(flange_
 
 @pytest.mark.parametrize("method", HAND_EYE_METHODS + ROBOT_WORLD_METHODS)
 def test_target_based_solvers_recover_simulated_cell(method):
-    cell = simulate_cell(n_poses=15, rng=4)
     T_ft = T_from_rpy([0, 0, 0.3], [0.0, 0.0, 0.01])
+    if method == "tsai":  # eq. 19 is exactly 180° about (1, -1, 0): Tsai's singularity, refused clearly
+        cell = simulate_cell(n_poses=15, rng=4)
+        C = cell.board_poses(0.0, np.random.default_rng(0), T_ft)
+        smp = [
+            HandEyeSample(T_base_flange=g, T_cam_target=c) for g, c in zip(cell.T_base_flange, C, strict=True)
+        ]
+        for backend in ("numpy", "auto"):
+            with pytest.raises(DataError, match="180"):
+                calibrate(smp, "eye-on-base", method=method, bootstrap=0, backend=backend)
+    # the text's rpy [3.1415, 0, -1.57] is 0.005° off 180°, which Tsai solves
+    cell = simulate_cell(n_poses=15, rng=4, T_base_camera=T_from_rpy([3.1415, 0, -1.57], [0.6, -0.0125, 1.0]))
     C = cell.board_poses(0.0, np.random.default_rng(0), T_ft)
     smp = [HandEyeSample(T_base_flange=g, T_cam_target=c) for g, c in zip(cell.T_base_flange, C, strict=True)]
     r = calibrate(smp, "eye-on-base", method=method, bootstrap=0)
