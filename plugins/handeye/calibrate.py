@@ -58,6 +58,9 @@ DEFAULTS: dict = {
     "e_required": 0.0,
     "k_max": 10_000,
     "compensate": False,
+    "inner": "best",  # Algorithm 1 inner loop: "best" of the four replacements, or "sequential" (as listed)
+    "refit": None,  # after Algorithm 1: refit on the pairs within refit x the pool's residual scale (3.0)
+    "resolve_translation": False,  # target-based: re-solve the translation once the rotation is fixed
     "bootstrap": 100,
     "backend": "auto",
     "board": None,
@@ -279,12 +282,14 @@ def _solve(
     warnings += diagnostics.check_rotation_diversity(P[:, :3, :3])
     cfg = "eye-on-base" if kind == "fixed" else "eye-in-hand"
     solver = classical.solve_hand_eye if method in classical.HAND_EYE_METHODS else classical.solve_robot_world
-    X, info = solver(P, C, cfg, method, backend=s["backend"])
+    X, info = solver(P, C, cfg, method, backend=s["backend"], resolve_translation=s["resolve_translation"])
     res = info.pop("residuals")
     metrics["backend"] = info.pop("backend")
     if s["bootstrap"]:
         metrics["bootstrap"] = diagnostics.bootstrap(
-            lambda i: solver(P[i], C[i], cfg, method, backend=s["backend"])[0],
+            lambda i: solver(
+                P[i], C[i], cfg, method, backend=s["backend"], resolve_translation=s["resolve_translation"]
+            )[0],
             len(P),
             min(s["bootstrap"], 50),
             s["seed"],
@@ -326,9 +331,19 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
     else:
         raise UsageError(f"unknown verifier {v!r}", "use 'consensus', 'icp' or a callable H -> e")
     pr = iterative_pool(
-        c, dst, verifier, cost, float(s["e_required"]), int(s["k_max"]), verifier_sees_count=sees
+        c,
+        dst,
+        verifier,
+        cost,
+        float(s["e_required"]),
+        int(s["k_max"]),
+        verifier_sees_count=sees,
+        inner=s["inner"],
+        refit=s["refit"],
     )
     X = pr.H_compensated if (s["compensate"] and pr.H_compensated is not None) else pr.H
+    if pr.H_refit is not None:
+        X = pr.H_refit
     res = np.linalg.norm(c @ X[:3, :3].T + X[:3, 3] - dst, axis=1)
     inl = np.zeros(len(c), bool)
     inl[pr.pool] = True
@@ -340,6 +355,7 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         "cost_history": pr.history.tolist(),
         "compensated": bool(s["compensate"] and pr.H_compensated is not None),
         "e_optimal": None if pr.e is None else pr.e,
+        "refit_inliers": pr.refit_inliers,
     }
     return X, res, inl, m
 
