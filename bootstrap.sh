@@ -21,10 +21,11 @@ command -v "$PY" >/dev/null || die "python3 not found; install Python 3.11+ (apt
 "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
   || die "weldcell needs Python 3.11 or newer; found $("$PY" --version 2>&1). Set PYTHON=/path/to/python3.11"
 
-# System packages: open3d needs libusb-1.0 and libgomp; venv needs python3-venv on Debian's own Python.
+# System packages: open3d links libusb-1.0, libgomp, libGL, libEGL and libX11; venv needs python3-venv
+# on Debian's own Python.
 need=()
 if command -v dpkg >/dev/null; then
-  for pkg in libusb-1.0-0 libgomp1; do
+  for pkg in libusb-1.0-0 libgomp1 libgl1 libegl1 libx11-6; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
   done
   if ! "$PY" -c 'import ensurepip, venv' >/dev/null 2>&1; then

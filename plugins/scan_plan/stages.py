@@ -175,7 +175,9 @@ def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
     return N
 
 
-def visible_from(P: np.ndarray, eye: np.ndarray, pixel: float | None = None, tol: float = 0.003) -> np.ndarray:
+def visible_from(
+    P: np.ndarray, eye: np.ndarray, pixel: float | None = None, tol: float = 0.003
+) -> np.ndarray:
     """Which points (N,) a camera at ``eye`` can see: a point-splat depth buffer.
 
     The points are projected through ``eye`` onto an image plane facing their centroid, binned in
