@@ -2,7 +2,8 @@
 
 Both get the same source, target, target normals (PCA, k = 20), initial guess, correspondence distance
 and convergence thresholds (relative fitness and RMSE 1e-6, at most 50 iterations). Times are the median
-of ``--repeat`` runs of the registration call alone (each builds its own KD-tree). Prints a markdown table.
+of ``--repeat`` runs of the registration call alone (each builds its own KD-tree), ours and Open3D's
+interleaved so that load from other processes hits both alike. Prints a markdown table.
 
     /work/venv/bin/python benchmarks/icp_vs_open3d.py [--repeat 7]
 """
@@ -75,14 +76,16 @@ def open3d_iterations(run) -> int:
         return sum("ICP Iteration #" in line for line in tmp)
 
 
-def median_time(fn, repeat: int) -> tuple[float, object]:
-    out = fn()
-    times = []
+def median_times(fns, repeat: int) -> list[tuple[float, object]]:
+    """Median wall time of each function over ``repeat`` rounds that call them in turn (after a warm-up)."""
+    outs = [fn() for fn in fns]
+    times: list[list[float]] = [[] for _ in fns]
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), out
+        for k, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            outs[k] = fn()
+            times[k].append(time.perf_counter() - t0)
+    return [(float(np.median(t)), o) for t, o in zip(times, outs, strict=True)]
 
 
 def main() -> None:
@@ -102,14 +105,16 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name, s, t, T_ref, d_max in cases:
         n = pca_normals(t, k=20)
-        t_ours, r = median_time(
-            lambda s=s, t=t, n=n, d=d_max: linear_icp(
-                s, t, n, max_correspondence_distance=d, max_iterations=args.iterations, tolerance=1e-6
-            ),
+        run = open3d_icp(s, t, n, d_max, args.iterations)
+        (t_ours, r), (t_o3d, ro) = median_times(
+            [
+                lambda s=s, t=t, n=n, d=d_max: linear_icp(
+                    s, t, n, max_correspondence_distance=d, max_iterations=args.iterations, tolerance=1e-6
+                ),
+                run,
+            ],
             args.repeat,
         )
-        run = open3d_icp(s, t, n, d_max, args.iterations)
-        t_o3d, ro = median_time(run, args.repeat)
         it_o3d = open3d_iterations(run)
         e_ours, e_o3d = pose_error(r.T, T_ref), pose_error(ro.transformation, T_ref)
         pts = f"{len(s)}/{len(t)}"

@@ -12,13 +12,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, rotation_angle
 from weldcell.sdk.scan import PosedScan  # noqa: F401  (re-exported: the scan type of this stage)
 
-from .denoise import as_points, pca_normals, voxel_downsample
-from .metrics import fitness
+from .denoise import as_points, voxel_downsample
 from .registration import IcpResult, linear_icp
 
 Progress = Callable[[int, int, str], None]
@@ -52,6 +52,17 @@ def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
             "pass the flange pose from the robot state and the hand-eye result as 4x4 matrices",
         )
     return T
+
+
+def _fitness(
+    dist: np.ndarray | None, src: np.ndarray, T: np.ndarray, tree: cKDTree, d_fit: float, d_max: float
+) -> float:
+    """Eq. 20 of ``src`` mapped by ``T`` against the model of ``tree``, from the ICP's own nearest-model
+    distances when they reach far enough (``d_fit <= d_max``), else by a search."""
+    if dist is None or d_fit > d_max:
+        S = src @ T[:3, :3].T + T[:3, 3]
+        dist, _ = tree.query(S, k=1, distance_upper_bound=d_fit, workers=-1)
+    return int(np.count_nonzero(dist < d_fit)) / tree.n
 
 
 def view_to_base(scan: PosedScan, T_flange_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,19 +153,23 @@ def reconstruct(
         fb = fa = 1.0
         if i > 0 and register_to_model:
             src = down(P)
-            model_n = pca_normals(model, k=normal_k)
+            # one KD-tree of the model per view, shared by the normals (computed only where the view
+            # overlaps the model), the correspondence search and eq. 20 before and after
+            tree = cKDTree(model, leafsize=32)
             res = linear_icp(
                 src,
                 model,
-                model_n,
+                None,
                 max_correspondence_distance=d_max,
                 max_iterations=max_iterations,
                 tolerance=tolerance,
                 robust=robust,
                 update=update,
+                normal_k=normal_k,
+                target_tree=tree,
             )
-            fb = fitness(src, model, max_distance=d_fit)
-            fa = fitness(src, model, res.T, max_distance=d_fit)
+            fb = _fitness(res.initial_distances, src, np.eye(4), tree, d_fit, d_max)
+            fa = _fitness(res.distances, src, res.T, tree, d_fit, d_max)
             dt = float(np.linalg.norm(res.T[:3, 3]))
             dr = rotation_angle(res.T[:3, :3])
             ok = dt <= max_correction[0] and dr <= max_correction[1] and fa >= fb - 0.02

@@ -90,7 +90,11 @@ def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _solve(J: np.ndarray, weights: np.ndarray | None, rcond: float) -> np.ndarray:
     """Eq. 8 on the rows ``J = [A | b]``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse."""
     # einsum, not BLAS: OpenBLAS's threads keep spinning after a call and slow down the KD-tree threads
-    G = np.einsum("ni,nj->ij", J * weights[:, None], J) if weights is not None else np.einsum("ni,nj->ij", J, J)
+    G = (
+        np.einsum("ni,nj->ij", J * weights[:, None], J)
+        if weights is not None
+        else np.einsum("ni,nj->ij", J, J)
+    )
     return np.linalg.pinv(G[:6, :6], rcond=rcond, hermitian=True) @ G[:6, 6]
 
 
@@ -273,8 +277,14 @@ class LazyNormals:
         need[j] = True
         need &= ~self.known
         miss = np.flatnonzero(need)
-        if len(miss):
+        if len(miss) > _THREADED_QUERY:
             n = _knn_normals(self.target, self.tree, self.k, miss)
+        elif len(miss):  # the same estimate without starting query threads for a few points
+            _, nb = self.tree.query(self.target[miss], k=max(self.k, 3), workers=1)
+            Q = self.target[nb]
+            D = Q - Q.mean(axis=1, keepdims=True)
+            n = np.linalg.eigh(np.einsum("nki,nkj->nij", D, D))[1][:, :, 0]
+        if len(miss):
             self.table[miss, :3] = n
             self.table[miss, 3] = np.einsum("ij,ij->i", n, self.target[miss])
             self.known[miss] = True
@@ -366,7 +376,7 @@ def linear_icp(
             sel = np.flatnonzero(idx >= 0)
             n_in, s_in, j, d_in = len(sel), Ss[sel], idx[sel], dist[sel]
         fit, frac = n_in / n_target, n_in / n_source
-        rmse = float(np.sqrt(np.dot(d_in, d_in) / n_in)) if n_in else 0.0
+        rmse = float(np.sqrt(np.einsum("i,i", d_in, d_in) / n_in)) if n_in else 0.0
         prmse = 0.0
         if n_in:
             if lazy is not None:
@@ -374,7 +384,7 @@ def linear_icp(
             nc = table[j]
             res = np.einsum("ij,ij->i", s_in, nc[:, :3])
             res -= nc[:, 3]  # (s - t) . n, the point-to-plane residual
-            prmse = float(np.sqrt(np.dot(res, res) / n_in))
+            prmse = float(np.sqrt(np.einsum("i,i", res, res) / n_in))
         last = (fit, frac, rmse, prmse)
         if prev is not None:
             # as Open3D: changes of the fitness (a ratio) and of the inlier RMSE (m) both below tolerance

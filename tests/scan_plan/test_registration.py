@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from weldcell.plugins.scan_plan.denoise import voxel_downsample
+from weldcell.plugins.scan_plan.denoise import pca_normals, voxel_downsample
 from weldcell.plugins.scan_plan.metrics import fitness
-from weldcell.plugins.scan_plan.registration import NearestCache, linear_icp, point_to_plane_step
+from weldcell.plugins.scan_plan.registration import LazyNormals, NearestCache, linear_icp, point_to_plane_step
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rotvec, invert, pose_error, transform_points
 
@@ -103,6 +103,27 @@ def test_nearest_cache_matches_a_full_query():
         ok = np.isfinite(d)
         assert np.array_equal(i[ok], i_ref[ok]) and np.allclose(d[ok], d_ref[ok])
     assert cache.n_queries < 12 * len(source)  # re-queried only points that may have changed neighbour
+
+
+def test_lazy_normals_give_the_result_of_all_normals_and_report_distances():
+    source, target, _, T_true = _pair()
+    full = linear_icp(source, target, pca_normals(target, k=20), max_correspondence_distance=0.05)
+    tree = cKDTree(target)
+    lazy = linear_icp(source, target, max_correspondence_distance=0.05, target_tree=tree)
+    assert lazy.iterations == full.iterations and lazy.fitness == full.fitness
+    assert np.allclose(lazy.T, full.T, atol=1e-12)
+    # the distances are those of a nearest-neighbour search at the initial and the final pose
+    d0, _ = tree.query(source, k=1, distance_upper_bound=0.05)
+    d1, _ = tree.query(transform_points(lazy.T, source), k=1, distance_upper_bound=0.05)
+    assert np.allclose(lazy.initial_distances, d0) and np.allclose(lazy.distances, d1)
+    # normals are estimated only where asked, equal (up to sign) to pca_normals
+    ln = LazyNormals(target, tree, k=20)
+    ln.ensure(np.arange(0, len(target), 7))
+    assert ln.n_estimated == len(range(0, len(target), 7))
+    ref = pca_normals(target, k=20)[::7]
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", ln.table[::7, :3], ref)), 1.0, atol=1e-9)
+    with pytest.raises(DataError):
+        linear_icp(source, target, max_correspondence_distance=0.05, target_tree=cKDTree(target[:-1]))
 
 
 @pytest.mark.data
