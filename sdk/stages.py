@@ -1,0 +1,84 @@
+"""The stage kinds of the first-party jobs and the call each stage object answers.
+
+A :class:`~weldcell.sdk.descriptors.StageSpec` has a ``kind``; a job asks for a stage by kind
+(its :class:`~weldcell.sdk.descriptors.StageRole`), builds it with ``factory(settings)`` and calls
+it as below. A plugin that registers a stage of one of these kinds can replace the built-in one
+in any profile (``[stages.<role>] plugin = "..."``). The protocols are structural: no base class
+to inherit, only the call to answer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+from weldcell.sdk.cloud import PointCloud
+from weldcell.sdk.scan import PosedScan
+from weldcell.sdk.weldpath import WeldPath
+
+
+class ReconstructStage(Protocol):
+    """kind ``reconstruct``: merge posed views into one model in the robot base frame.
+
+    Returns an object with ``cloud`` (PointCloud, base frame), ``fitness_before``, ``fitness`` and
+    ``accepted`` (one entry per view).
+    """
+
+    def __call__(
+        self,
+        scans: Sequence[PosedScan],
+        T_flange_camera: np.ndarray,
+        progress: Callable[[int, int, str], None] | None = None,
+    ) -> Any: ...
+
+
+class DenoiseStage(Protocol):
+    """kind ``denoise``: a cleaner (and usually thinner) cloud; keep ``meta`` (it carries viewpoints)."""
+
+    def __call__(self, cloud: PointCloud) -> PointCloud: ...
+
+
+class SeamStage(Protocol):
+    """kind ``seam``: find weld seams. Returns an object with ``seams``: a list of polylines, each with
+    ``id``, ``joint_class``, ``points`` (K, 3) ordered along travel, ``normals`` (K, 3) approach
+    directions into the joint, ``closed`` and ``length``."""
+
+    def __call__(self, cloud: PointCloud) -> Any: ...
+
+
+class PathStage(Protocol):
+    """kind ``path``: torch poses along seams (z toward the work, x along travel)."""
+
+    def __call__(self, seams: Sequence[Any], frame: str = "base") -> WeldPath: ...
+
+
+class HandEyeStage(Protocol):
+    """kind ``handeye``: measure the calibration feature in a scan and solve the hand-eye transform.
+
+    ``measure(points, predicted=None, seed=0)`` returns a measurement with the feature position in
+    the camera frame; ``solve(samples, config, ...)`` returns a
+    :class:`weldcell.plugins.handeye.result.HandEyeResult` (``weldcell/hand-eye@1``).
+    """
+
+    def measure(self, points: np.ndarray, predicted: np.ndarray | None = None, seed: int = 0) -> Any: ...
+
+    def solve(self, samples: Sequence[Any], config: str, **kwargs: Any) -> Any: ...
+
+
+class TactileServoStage(Protocol):
+    """kind ``tactile-servo``: a servo for a planned path; ``step(t, T_base_tool, delta)`` returns the
+    next velocity command (see :mod:`weldcell.plugins.tactile.servo`)."""
+
+    def __call__(self, planned_points: np.ndarray, gate: Callable[..., None] | None = None) -> Any: ...
+
+
+STAGE_KINDS: dict[str, type] = {
+    "reconstruct": ReconstructStage,
+    "denoise": DenoiseStage,
+    "seam": SeamStage,
+    "path": PathStage,
+    "handeye": HandEyeStage,
+    "tactile-servo": TactileServoStage,
+}
+"""Stage kind -> the protocol its stage objects answer."""
