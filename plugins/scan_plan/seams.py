@@ -967,9 +967,15 @@ def chain_seams(
         Xr = _smooth_positions(Xr, w, closed)
         Ar = _smooth_approach(Ar, np.ones(len(Ar), dtype=bool), w, closed)
         if not closed:  # smoothing must not lengthen the seam, and the ends can still fold back: cut them
-            d0, d1 = _end_directions(Xs, spacing, max(0.01, 3 * spacing))
-            inside = (np.einsum("ij,j->i", Xr - Xs[0], d0) <= 0) & (
-                np.einsum("ij,j->i", Xr - Xs[-1], d1) <= 0
+            end_len = max(0.01, 3 * spacing)
+            d0, d1 = _end_directions(Xs, spacing, end_len)
+            # only nodes near each end can overshoot it (a long seam that curves may pass behind the
+            # plane through its far end)
+            k_end = np.arange(len(Xr))
+            near0 = k_end < max(3, int(round(end_len / spacing)))
+            near1 = k_end >= len(Xr) - max(3, int(round(end_len / spacing)))
+            inside = ~(near0 & (np.einsum("ij,j->i", Xr - Xs[0], d0) > 0)) & ~(
+                near1 & (np.einsum("ij,j->i", Xr - Xs[-1], d1) > 0)
             )
             Xr, Ar = Xr[inside], Ar[inside]
             if len(Xr) < 3:

@@ -142,48 +142,46 @@ def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
     """The cloud's normals flipped toward a camera in ``meta["viewpoints"]`` that saw the point (else None:
     the seam extractor then orients them itself).
 
-    With one viewpoint every normal faces it. With several (a merged multi-view scan) the nearest camera
-    is often *behind* the surface (a ring of views around a pipe), so each normal faces the camera that
-    sees its point most squarely among those that can see it at all (:func:`visible_from`); points no
-    camera sees fall back to the camera most aligned with the normal line.
+    Each normal faces the nearest camera, as long as that camera can see the point
+    (:func:`visible_from`). With a ring of views around a pipe the nearest camera is often *behind*
+    the surface; such points face the camera that sees them most squarely among those that can see
+    them, and points no camera sees keep the nearest camera.
     """
     views = cloud.meta.get("viewpoints")
     if cloud.normals is None or views is None or len(views) == 0:
         return None
     V = np.asarray(views, dtype=float).reshape(-1, 3)
     P, N = cloud.points, cloud.normals
-    if len(V) == 1:
-        flip = np.sum((V[0] - P) * N, axis=1) < 0
-    else:
-        best = np.full(len(P), -1.0)  # |cos| of the best visible camera so far
-        sign = np.zeros(len(P))
-        fallback = np.zeros(len(P))
-        fb_abs = np.full(len(P), -1.0)
-        for v in V:
+    d2 = ((P[:, None, :] - V[None, :, :]) ** 2).sum(axis=2)
+    nearest = np.argmin(d2, axis=1)
+    sign = np.sign(np.einsum("ij,ij->i", V[nearest] - P, N))
+    if len(V) > 1:
+        near_sees = np.zeros(len(P), dtype=bool)
+        best = np.full(len(P), -1.0)  # |cos| of the most square camera that sees the point
+        best_sign = np.zeros(len(P))
+        for i, v in enumerate(V):
             D = v - P
             cos = np.einsum("ij,ij->i", D, N) / np.maximum(np.linalg.norm(D, axis=1), 1e-12)
-            a = np.abs(cos)
-            upd = a > fb_abs
-            fb_abs[upd], fallback[upd] = a[upd], np.sign(cos[upd])
             vis = visible_from(P, v)
-            upd = vis & (a > best)
-            best[upd], sign[upd] = a[upd], np.sign(cos[upd])
-        sign = np.where(best >= 0, sign, fallback)
-        flip = sign < 0
-    N = N.copy()
-    N[flip] *= -1
-    return N
+            near_sees |= vis & (nearest == i)
+            upd = vis & (np.abs(cos) > best)
+            best[upd], best_sign[upd] = np.abs(cos[upd]), np.sign(cos[upd])
+        other = ~near_sees & (best >= 0)
+        sign[other] = best_sign[other]
+    return N * np.where(sign < 0, -1.0, 1.0)[:, None]
 
 
 def visible_from(
-    P: np.ndarray, eye: np.ndarray, pixel: float | None = None, tol: float = 0.003
+    P: np.ndarray, eye: np.ndarray, pixel: float | None = None, tol: float | None = 0.003
 ) -> np.ndarray:
     """Which points (N,) a camera at ``eye`` can see: a point-splat depth buffer.
 
     The points are projected through ``eye`` onto an image plane facing their centroid, binned in
-    pixels of ``pixel`` rad (default 2 x the median point spacing over the median range, so the surface
-    closes without holes), and a point is visible when it lies within ``tol`` (m) of the nearest point in
-    its pixel. Points behind the eye's image plane are not visible.
+    pixels of ``pixel`` rad (default 5 x the mean point spacing over the median range, so the surface
+    closes without holes even where it is seen obliquely), and a point is visible when it lies within
+    ``tol`` (m) of the nearest point in its pixel: the far side of a part is hidden. Points behind the
+    eye's image plane are not visible. Conservative near creases and silhouettes (points there may be
+    reported hidden), which :func:`oriented_normals` tolerates.
     """
     D = P - np.asarray(eye, dtype=float)
     z_axis = D.mean(axis=0)
@@ -200,7 +198,7 @@ def visible_from(
     if pixel is None:
         from weldcell.plugins.scan_plan.denoise import mean_spacing
 
-        pixel = 2.0 * mean_spacing(P, sample=2000) / float(np.median(depth[front]))
+        pixel = 5.0 * mean_spacing(P, sample=2000) / float(np.median(depth[front]))
     f = np.flatnonzero(front)
     u = np.floor((D[f] @ x_axis) / zc[f] / pixel).astype(np.int64)
     w = np.floor((D[f] @ y_axis) / zc[f] / pixel).astype(np.int64)
@@ -208,6 +206,8 @@ def visible_from(
     _, inv = np.unique(key, return_inverse=True)
     zmin = np.full(int(inv.max()) + 1, np.inf)
     np.minimum.at(zmin, inv, depth[f])
+    if tol is None:
+        tol = 0.003
     out[f] = depth[f] <= zmin[inv] + tol
     return out
 

@@ -6,10 +6,14 @@ import numpy as np
 import pytest
 from weldcell.plugins.scan_plan.denoise import (
     bilateral_filter,
+    knn_table,
+    largest_eigvec,
     mean_spacing,
     noise_level,
     pca_normals,
     radius_pairs,
+    smallest_eigvec,
+    sym3_eigvals,
     voxel_downsample,
 )
 from weldcell.sdk.errors import DataError
@@ -140,3 +144,50 @@ def test_bad_inputs_raise_data_error(call):
     with pytest.raises(DataError) as err:
         call()
     assert err.value.fix
+
+
+# ------------------------------------------------------------------- closed-form eigen, shared table
+
+
+def test_closed_form_3x3_eigen_solver_matches_eigh():
+    rng = np.random.default_rng(1)
+    Q = rng.normal(size=(5000, 20, 3)) * np.array([1e-3, 5e-4, 1e-5])  # flat, elongated neighbourhoods
+    Q = Q @ np.linalg.qr(rng.normal(size=(5000, 3, 3)))[0].transpose(0, 2, 1)
+    D = Q - Q.mean(1, keepdims=True)
+    C = D.transpose(0, 2, 1) @ D
+    C[:3] = np.eye(3) * 1e-6  # degenerate: any unit vector is an eigenvector
+    w, V = np.linalg.eigh(C)
+    assert np.allclose(sym3_eigvals(C), w, rtol=0, atol=1e-9 * np.abs(w).max())
+    for v, ref in ((smallest_eigvec(C), V[:, :, 0]), (largest_eigvec(C), V[:, :, 2])):
+        assert np.allclose(np.linalg.norm(v, axis=1), 1.0)
+        assert np.all(np.abs(np.einsum("ij,ij->i", v[3:], ref[3:])) > 1 - 1e-9)
+    n0 = smallest_eigvec(C)
+    resid = np.einsum("nij,nj->ni", C, n0) - sym3_eigvals(C)[:, :1] * n0
+    assert np.abs(resid).max() < 1e-12
+
+
+def test_bilateral_with_a_shared_table_equals_the_radius_search():
+    P0, P = fillet_joint()
+    table = knn_table(P, 80, radius=R)  # wide enough: every point within R is in the table
+    assert (table.dist[:, 1:] <= R).sum(1).max() < 80
+    a, na = bilateral_filter(P, R, sigma_s=2 * SIGMA)
+    b, nb = bilateral_filter(P, R, sigma_s=2 * SIGMA, neighbours=table)
+    assert np.allclose(a, b, atol=1e-12)
+    assert np.all(np.abs(np.einsum("ij,ij->i", na, nb)) > 1 - 1e-9)
+    with pytest.raises(DataError, match="reaches"):
+        bilateral_filter(P, R, neighbours=knn_table(P, 80, radius=R / 2))
+    with pytest.raises(DataError, match="another cloud"):
+        bilateral_filter(P[::-1].copy(), R, neighbours=table)
+
+
+def test_neighbour_table_follows_moved_points_and_sampled_spacing_is_close():
+    _, P = fillet_joint()
+    table = knn_table(P, 16, radius=0.003)
+    assert np.all(table.idx[:, 0] == np.arange(len(P))) and np.all(table.dist[:, 0] == 0)
+    moved = P + RNG.normal(0, 1e-5, P.shape)
+    t2 = table.moved_to(moved)
+    fin = np.isfinite(table.dist)
+    assert np.allclose(t2.dist[fin], np.linalg.norm(moved[table.idx] - moved[:, None], axis=2)[fin])
+    assert t2.matches(moved) and not t2.matches(moved.copy())
+    exact = mean_spacing(P)
+    assert abs(mean_spacing(P, sample=500) - exact) < 0.05 * exact

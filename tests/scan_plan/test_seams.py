@@ -7,14 +7,20 @@ import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial import cKDTree
+from weldcell.plugins.scan_plan.denoise import knn_table
 from weldcell.plugins.scan_plan.seams import (
     CONCAVE,
     CONVEX,
     GROOVE,
     SeamPolyline,
+    _orient,
+    _Piece,
+    _unit,
     adaptive_neighbourhood,
+    bridge_pieces,
     edge_intensity,
     edge_ratio,
+    edge_scores,
     extract_seams,
 )
 from weldcell.sdk.errors import DataError
@@ -275,3 +281,113 @@ def test_bad_settings_raise_data_error(tee):
         extract_seams(P, joints=("butt",))
     with pytest.raises(DataError, match="normals"):
         extract_seams(P, normals=np.zeros((3, 3)))
+
+
+# ----------------------------------------------------------------------------- speed-ups keep results
+
+
+def test_restricted_edge_scores_equal_the_full_computation(groove):
+    """Eqs. 13-17 evaluated only where eq. 12 passes min_intensity give the same edge mask and the same
+    ratios there as evaluating every point (the noise floor is still a median over all points)."""
+    P = groove[0]
+    full = edge_scores(P, min_intensity=0.0)
+    part = edge_scores(P, min_intensity=0.15)
+    rows = part.intensity >= 0.15
+    assert np.isnan(part.ratio[~rows]).all() and rows.sum() < 0.8 * len(P)
+    assert np.array_equal(part.ratio[rows], full.ratio[rows])
+    for t in (30.0, 40.0, 100.0):
+        with np.errstate(invalid="ignore"):
+            assert np.array_equal((part.ratio >= t) & rows, (full.ratio >= t) & rows)
+
+
+def test_shared_neighbour_table_gives_the_same_seams(tee):
+    P, N, roots, _, res = tee
+    table = knn_table(P, 32, radius=0.01)
+    shared = extract_seams(P, N, neighbours=table)
+    assert np.array_equal(shared.edge_mask, res.edge_mask)
+    assert len(shared.seams) == len(res.seams) == 2
+    for a, b in zip(shared.seams, res.seams, strict=True):
+        assert a.points.shape == b.points.shape and np.allclose(a.points, b.points, atol=1e-9)
+    other = knn_table(P[::-1].copy(), 32, radius=0.01)  # a table of other points is not used
+    assert np.array_equal(extract_seams(P, N, neighbours=other).edge_mask, res.edge_mask)
+
+
+# ----------------------------------------------------------------------------- gap bridging, travel direction
+
+
+def _tee_piece(P, N, y0, y1, x=0.005, spacing=0.0015):
+    y = np.arange(y0, y1, spacing)
+    X = np.column_stack([np.full_like(y, x), y, np.full_like(y, 0.008)])
+    A = np.tile(_unit(np.array([-1.0, 0.0, -1.0])), (len(y), 1))
+    return _Piece(X, A, False, np.zeros(6, dtype=np.int64))
+
+
+def test_gap_bridging_joins_collinear_pieces_but_not_a_corner(tee):
+    P, N = tee[0], tee[1]
+    tree = cKDTree(P)
+    kw = dict(
+        max_gap=0.03,
+        max_angle=np.deg2rad(20),
+        spacing=0.0015,
+        side_radius=0.006,
+        min_crease_angle=np.deg2rad(35),
+    )
+    a, b = _tee_piece(P, N, 0.01, 0.04), _tee_piece(P, N, 0.055, 0.09)  # 15 mm gap on the +x root
+    out = bridge_pieces(P, N, tree, [a, b], **kw)
+    assert len(out) == 1
+    y = out[0].X[:, 1]
+    assert y.min() < 0.011 and y.max() > 0.088 and np.all(np.diff(y) > 0)  # one run across the gap
+    # a piece turning 90 deg at the end of the root (along the plate, no joint there) is not joined
+    y = np.arange(0.0, 0.025, 0.0015)
+    corner = _Piece(
+        np.column_stack([0.005 + 0.002 + y, np.full_like(y, 0.042), np.full_like(y, 0.008)]),
+        np.tile([0.0, 0.0, -1.0], (len(y), 1)),
+        False,
+        np.zeros(6, dtype=np.int64),
+    )
+    assert len(bridge_pieces(P, N, tree, [a, corner], **kw)) == 2
+
+
+def test_open_arcs_travel_the_same_way_round_as_a_closed_loop():
+    th = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    ring = np.column_stack([0.02 * np.cos(th), 0.02 * np.sin(th), np.zeros_like(th)])
+    A = np.tile([0.3, 0.0, -1.0], (len(th), 1))  # approach from above: counter-clockwise seen from +z
+    X, _ = _orient(ring[::-1], A, True)
+    assert np.cross(X[1] - X[0], X[2] - X[1])[2] > 0 and np.cross(X[0], X[1] - X[0])[2] > 0
+    for lo, hi in ((0, 30), (60, 110), (120, 200)):  # 54-144 deg arcs, given clockwise or not
+        for arc in (ring[lo:hi], ring[lo:hi][::-1]):
+            Xa, _ = _orient(arc, A[lo:hi], False)
+            assert np.cross(Xa[0], Xa[-1])[2] > 0  # counter-clockwise about +z, as the closed loop
+    line = np.column_stack([np.zeros(50), np.linspace(0.1, 0.0, 50), np.zeros(50)])
+    Xl, _ = _orient(line, np.tile([0, 0, -1.0], (50, 1)), False)
+    assert Xl[-1, 1] > Xl[0, 1]  # straight: along the principal axis, largest component positive
+
+
+# ----------------------------------------------------------------------------- one-sided / unseen creases
+
+
+def test_creases_whose_sides_no_camera_sees_are_not_weld_seams(tee):
+    P, N, roots, _, res = tee
+    above = np.array([[0.0, 0.05, 0.5], [0.3, 0.05, 0.4], [-0.3, 0.05, 0.4]])
+    seen = extract_seams(P, N, viewpoints=above)
+    assert len(seen.seams) == 2 and all(seams_near(seen.seams, r, 0.001) for r in roots)
+    below = np.array([[0.0, 0.05, -0.5]])  # a camera under the plate cannot have measured the fillets
+    assert extract_seams(P, N, viewpoints=below).seams == []
+
+
+def test_multi_view_normals_face_a_camera_that_sees_the_point():
+    """A pipe scanned from a ring of cameras: the nearest camera is often behind the surface; the
+    normals must still point outward (away from the axis)."""
+    from weldcell.plugins.scan_plan.stages import oriented_normals
+    from weldcell.sdk.cloud import PointCloud
+
+    rng = np.random.default_rng(4)
+    th, x = rng.uniform(0, np.pi, 30000), rng.uniform(-0.2, 0.2, 30000)  # upper half of a pipe along x
+    out = np.column_stack([np.zeros_like(th), np.cos(th), np.sin(th)])
+    P = out * 0.04
+    P[:, 0] = x
+    az = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    V = np.column_stack([0.32 * np.cos(az), 0.32 * np.sin(az), np.full(8, 0.38)])
+    N = out * rng.choice([-1.0, 1.0], (len(P), 1))  # unoriented
+    No = oriented_normals(PointCloud(P, normals=N, meta={"viewpoints": V.tolist()}))
+    assert np.mean(np.einsum("ij,ij->i", No, out) > 0) > 0.99
