@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 from weldcell.sdk.cloud import PointCloud, check_cloud
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length
-from weldcell.sdk.weldpath import SeamPath, WeldPath
+from weldcell.sdk.weldpath import WeldPath
 
 
 class ReconstructSettings(Settings):
@@ -267,11 +267,10 @@ class TorchPathPlanner:
         self.s = s
 
     def __call__(self, seams, frame: str = "base") -> WeldPath:
-        from weldcell.plugins.scan_plan.torch_path import plan_torch_path
+        from weldcell.plugins.scan_plan.torch_path import plan_torch_path, weld_path
 
-        out = []
-        for seam in seams:
-            tp = plan_torch_path(
+        paths = [
+            plan_torch_path(
                 seam,
                 standoff=self.s.standoff,
                 work_angle=self.s.work_angle,
@@ -279,14 +278,6 @@ class TorchPathPlanner:
                 travel_average=self.s.travel_average,
                 rho=self.s.rho,
             )
-            out.append(
-                SeamPath(
-                    id=f"s{seam.id}",
-                    joint=seam.joint_class,
-                    points=seam.points,
-                    poses=tp.poses,
-                    closed=seam.closed,
-                    extra={"approach": np.round(seam.normals, 6).tolist()},
-                )
-            )
-        return WeldPath(out, frame=frame)
+            for seam in seams
+        ]
+        return weld_path(list(seams), paths, frame=frame)
