@@ -61,6 +61,23 @@ BUILTIN_SCRIPTS: dict[str, list[dict]] = {
         {"ok": True, "seconds": 0.3},
         {"fist": True, "seconds": 0.6},
     ],
+    # A fillet T-joint (a web standing on a plate, its seams along base x): a top view, then one view
+    # from each side of the web, lowered, moved 0.3 m sideways and tilted 35 deg toward the web, so the
+    # camera sees the web face and the plate at each seam (the foot of the web) at 35-55 deg instead of
+    # grazing. The hand keeps its tilt while it makes the "ok" sign (else the camera levels during the hold).
+    "survey-sides": [
+        {"none": True, "seconds": 0.3},
+        {"left": "home", "rpy": [0, 0, 0], "seconds": 2.3},
+        {"ok": True, "left": "home", "rpy": [0, 0, 0], "seconds": 0.3},
+        {"left": "down", "seconds": 1.9},
+        {"left": "outward", "seconds": 3.7},
+        {"left": "home", "rpy": [35, 0, 0], "seconds": 1.1},
+        {"ok": True, "left": "home", "rpy": [35, 0, 0], "seconds": 0.3},
+        {"left": "inward", "seconds": 7.4},
+        {"left": "home", "rpy": [-35, 0, 0], "seconds": 1.9},
+        {"ok": True, "left": "home", "rpy": [-35, 0, 0], "seconds": 0.3},
+        {"fist": True, "seconds": 0.6},
+    ],
     # One capture from where the robot starts.
     "single": [
         {"left": "home", "rpy": [0, 0, 0], "seconds": 0.3},

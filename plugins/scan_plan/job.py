@@ -4,6 +4,7 @@ seam extraction → 6-DOF weld path → metrics, robot programs and a report."""
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -368,9 +369,14 @@ def run(ctx) -> dict:
     scans = crop_to_roi(gesture_scan(ctx, T_flange_camera), T_flange_camera, s.roi_min, s.roi_max)
 
     with ctx.step("reconstruct (merge + linear ICP)", total=len(scans)) as advance:
-        rec = ctx.stage("reconstruct")(
-            scans, T_flange_camera, progress=lambda i, n, msg="": advance(i, n, msg)
-        )
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rec = ctx.stage("reconstruct")(
+                scans, T_flange_camera, progress=lambda i, n, msg="": advance(i, n, msg)
+            )
+        for w in caught:  # e.g. an ICP correction refused: the operator sees it as a line, not a traceback
+            ctx.reporter.info(f"[yellow]{w.message}[/yellow]")
+        ctx.figures["reconstruction_notes"] = [str(w.message) for w in caught]
         write_cloud(ctx.path("model.ply"), rec.cloud)
         rec.cloud.meta["viewpoints"] = [(sc.T_base_flange @ T_flange_camera)[:3, 3].tolist() for sc in scans]
     ctx.figures["reconstruction"] = {
