@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import Field
+from rich.markup import escape
 from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
 from weldcell.sdk.artifacts import read_json
 from weldcell.sdk.cloud import drop_invalid, read_cloud, write_cloud
@@ -375,7 +376,7 @@ def run(ctx) -> dict:
                 scans, T_flange_camera, progress=lambda i, n, msg="": advance(i, n, msg)
             )
         for w in caught:  # e.g. an ICP correction refused: the operator sees it as a line, not a traceback
-            ctx.reporter.info(f"[yellow]{w.message}[/yellow]")
+            ctx.reporter.info(f"[yellow]{escape(str(w.message))}[/yellow]")
         ctx.figures["reconstruction_notes"] = [str(w.message) for w in caught]
         write_cloud(ctx.path("model.ply"), rec.cloud)
         rec.cloud.meta["viewpoints"] = [(sc.T_base_flange @ T_flange_camera)[:3, 3].tolist() for sc in scans]
