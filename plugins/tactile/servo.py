@@ -481,27 +481,10 @@ class TactileSeamServo:
         # lines 9-13: torch frame and ω
         t_t, n_t, e_t = self._torch_frame(P_t)
         heading_error = math.atan2(t_d[0] * t_t[1] - t_d[1] * t_t[0], float(t_d @ t_t))
-        sol = torch_angular_velocity(
-            V2,
-            t_d,
-            n_d,
-            n_t,
-            S.torch_offset,
-            e_t,
-            S.torch_gain,
-            S.singular_cos,
-            S.damping,
-            heading_error,
-            S.align_gain,
-            S.omega_max,
-        )
-        omega = sol.omega
-        if m.state in ("approach", "tracking") and sol.weight < 1.0:
-            # slow the travel in the singular zone, keep the deformation servo's normal part
-            along = float(V2 @ t_v)
-            V2 = V2 + (sol.weight - 1.0) * along * t_v
-            sol = torch_angular_velocity(
-                V2,
+
+        def omega_for(V: np.ndarray):
+            return torch_angular_velocity(
+                V,
                 t_d,
                 n_d,
                 n_t,
@@ -514,7 +497,14 @@ class TactileSeamServo:
                 S.align_gain,
                 S.omega_max,
             )
-            omega = sol.omega
+
+        sol = omega_for(V2)
+        if m.state in ("approach", "tracking") and sol.weight < 1.0:
+            # slow the travel in the singular zone, keep the deformation servo's normal part
+            along = float(V2 @ t_v)
+            V2 = V2 + (sol.weight - 1.0) * along * t_v
+            sol = omega_for(V2)
+        omega = sol.omega
         if m.state == "stopping":
             omega *= quintic_ramp_down((t - m.stop_t0) / S.stop_time)
         if m.state in ("stopped", "fault"):
