@@ -58,7 +58,9 @@ class SimCameraSettings(Settings):
 class SimGestureSettings(Settings):
     """A Leap-like hand tracker playing a scripted hand."""
 
-    script: str = Field("survey", description="built-in script name ('survey', 'survey-sides', 'single') or a .json file")
+    script: str = Field(
+        "survey", description="built-in script name ('survey', 'survey-sides', 'single') or a .json file"
+    )
     rate: Frequency = Field(60.0, gt=0, description="frames per second of simulated time [Hz]")
     disconnect_after: int | None = Field(None, ge=0, description="drop the connection after this many frames")
 
