@@ -20,9 +20,11 @@ Beyond the paper (the paper stops at a set of edge points):
   with a narrow included angle), ``convex`` (plate outlines, web tops), ``boundary`` (one-sided
   neighbourhood: scan borders, free plate edges) and ``weak`` (sides nearly parallel: noise);
 * weldable points are clustered (KD-tree radius graph, approach directions must agree), each cluster
-  is ordered along a minimum-spanning-tree diameter (works for curved and closed seams), binned along
-  that arclength, snapped onto the intersection line of the two fitted side planes, smoothed and
-  resampled at a fixed spacing into a :class:`SeamPolyline`.
+  is ordered along a minimum-spanning-tree diameter (works for curved and closed seams) from which the
+  side rows and spurs it folds back along are cut (a monotonicity check of the geodesic distance from
+  its start, :func:`_unfold_path`), binned along that arclength (bins that run back are dropped),
+  snapped onto the intersection line of the two fitted side planes, smoothed and resampled at a fixed
+  spacing into a :class:`SeamPolyline`.
 """
 
 from __future__ import annotations
@@ -461,18 +463,6 @@ def classify_edges(
 # ----------------------------------------------------------------------------- chaining
 
 
-def _mst_diameter(mst, nodes: np.ndarray) -> np.ndarray:
-    """Ordered node indices (into the full graph) of the longest path of the tree over ``nodes``."""
-    d0 = dijkstra(mst, directed=False, indices=nodes[0])
-    a = nodes[np.argmax(np.where(np.isfinite(d0[nodes]), d0[nodes], -1))]
-    da, pred = dijkstra(mst, directed=False, indices=a, return_predecessors=True)
-    b = nodes[np.argmax(np.where(np.isfinite(da[nodes]), da[nodes], -1))]
-    path = [b]
-    while path[-1] != a:
-        path.append(pred[path[-1]])
-    return np.array(path[::-1])
-
-
 def _resample(X: np.ndarray, A: np.ndarray, spacing: float, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     if closed:
         X = np.vstack([X, X[:1]])
@@ -644,31 +634,146 @@ class _Piece:
     crease: np.ndarray | None = None  # (K,) angle between the fitted side-plane normals (rad)
 
 
-def _cluster_piece(
-    X: np.ndarray, A: np.ndarray, nodes: np.ndarray, mst, eps: float, spacing: float, labels: np.ndarray
-) -> _Piece | None:
-    """Order one cluster along its MST diameter and average its points in bins of ``spacing``."""
-    path = _mst_diameter(mst, nodes)
-    if len(path) < 3:
-        return None
-    B = X[path]
-    s_path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(B, axis=0), axis=1))])
-    L_path = s_path[-1]
-    gap = float(np.linalg.norm(B[-1] - B[0]))
-    closed = gap <= 2.0 * eps and L_path > 6.0 * eps
-    _, near = cKDTree(B).query(X[nodes])  # arclength of every point = that of its nearest backbone node
-    s = s_path[near]
-    nbins = max(int(np.ceil(((L_path + gap) if closed else L_path) / spacing)), 1)
-    b = np.minimum((s / spacing).astype(int), nbins - 1)
+def _farthest(
+    graph, groups: list[np.ndarray], sources: np.ndarray, directed: bool, predecessors: bool = False
+):
+    """One batched Dijkstra from one source per group (component): distances (M,) from each node's own
+    source, the farthest node of every group and, when asked, the predecessors (M,)."""
+    res = dijkstra(graph, directed=directed, indices=sources, min_only=True, return_predecessors=predecessors)
+    d = res[0] if predecessors else res
+    far = np.array([g[np.argmax(np.where(np.isfinite(d[g]), d[g], -1.0))] for g in groups])
+    return (d, far, res[1]) if predecessors else (d, far)
+
+
+def _trace(pred: np.ndarray, start: int, end: int) -> np.ndarray:
+    """Node indices from ``start`` to ``end`` along a Dijkstra predecessor array (rooted at start)."""
+    path = [end]
+    while path[-1] != start:
+        path.append(pred[path[-1]])
+    return np.array(path[::-1])
+
+
+def _tree_diameters(mst, groups: list[np.ndarray]) -> list[np.ndarray]:
+    """Ordered node indices of the longest path of the spanning tree of every group (double sweep,
+    batched over the groups: two Dijkstra runs in all)."""
+    _, a = _farthest(mst, groups, np.array([g[0] for g in groups]), directed=False)
+    _, b, pred = _farthest(mst, groups, a, directed=False, predecessors=True)
+    return [_trace(pred, start, end) for start, end in zip(a, b, strict=True)]
+
+
+def _fold(path: np.ndarray, geo: np.ndarray, tol: float) -> int:
+    """Index into ``path`` where the path turns back, or -1: the node after which the geodesic distance
+    ``geo`` (from ``path[0]`` in the link graph) falls more than ``tol`` below its running maximum."""
+    g = geo[path]
+    back = np.flatnonzero(g < np.maximum.accumulate(g) - tol)
+    return int(np.argmax(g[: back[0]])) if len(back) else -1
+
+
+def _unfold_path(
+    graph, X: np.ndarray, nodes: np.ndarray, path: np.ndarray, geo: np.ndarray, eps: float, rounds: int = 4
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tree path of a cluster without the side branches it folds back along (monotone ordering),
+    and the geodesic distances from its start.
+
+    On sparse points the diameter of the minimum spanning tree can end in a side row or spur: it then
+    runs back alongside the seam, so the chain folds at that end (its first or last points run
+    backwards). Along a path that follows the seam the geodesic distance from its start in the link
+    ``graph`` (``geo``) grows monotonically -- a side row within ``eps`` of the seam has about the
+    distance of the seam beside it -- so a fall of more than ``eps`` marks the fold (:func:`_fold`).
+    The shorter part of the path at the fold is the side branch: its nodes are set aside, the spanning
+    tree of the cluster's other nodes is built again and the path re-grown from the kept end to its
+    farthest node (e.g. the real seam end, which the old tree may have reached through the branch);
+    repeated while a fold remains (at most ``rounds`` times). The set-aside points still belong to
+    the cluster (they are binned with the nearest path node). ``nodes``: the cluster's node indices
+    into ``graph``, ``path``: its tree diameter, ``geo``: distances from ``path[0]`` in ``graph``.
+    """
+    local = np.full(graph.shape[0], -1)
+    local[nodes] = np.arange(len(nodes))
+    sub = graph[nodes][:, nodes]
+    aside = np.zeros(len(nodes), dtype=bool)
+    for _ in range(rounds):
+        f = _fold(path, geo, eps)
+        if f < 0:
+            break
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(X[path], axis=0), axis=1))])
+        if s[f] < s[-1] - s[f]:  # the start is the side branch: keep the end
+            path = path[::-1]
+            f = len(path) - 1 - f
+            geo = dijkstra(graph, directed=True, indices=path[0])
+        aside[local[path[f + 1 :]]] = True
+        keep = np.flatnonzero(~aside)
+        tree = minimum_spanning_tree(sub[keep][:, keep])
+        start = int(np.searchsorted(keep, local[path[0]]))
+        d, pred = dijkstra(tree, directed=False, indices=start, return_predecessors=True)
+        end = int(np.argmax(np.where(np.isfinite(d), d, -1.0)))
+        path = nodes[keep[_trace(pred, start, end)]]
+    return path, geo
+
+
+def _bin_means(V: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Means of the rows of ``V`` in the bins ``b`` (occupied bins, in order) and their counts."""
+    nbins = int(b.max()) + 1
     cnt = np.bincount(b, minlength=nbins)
     occ = cnt > 0
-    Xn, An = X[nodes], A[nodes]
-    Xs = np.stack([np.bincount(b, weights=Xn[:, d], minlength=nbins) for d in range(3)], 1)[occ]
-    As = np.stack([np.bincount(b, weights=An[:, d], minlength=nbins) for d in range(3)], 1)[occ]
-    if len(Xs) < 3:
-        return None
-    lab = np.bincount(labels[nodes].astype(int), minlength=6)
-    return _Piece(Xs / cnt[occ][:, None], _unit(As), bool(closed), lab)
+    sums = np.stack([np.bincount(b, weights=V[:, d], minlength=nbins) for d in range(V.shape[1])], 1)
+    return sums[occ] / cnt[occ][:, None], cnt[occ]
+
+
+def _cluster_pieces(
+    X: np.ndarray,
+    A: np.ndarray,
+    groups: list[np.ndarray],
+    graph,
+    mst,
+    eps: float,
+    spacing: float,
+    labels: np.ndarray,
+) -> list[_Piece | None]:
+    """Order each cluster (node indices ``groups`` into ``X``) and average its points in bins of
+    ``spacing`` along that order.
+
+    The backbone is the longest path of the cluster's minimum spanning tree, with the side branches it
+    folds back along cut off (:func:`_unfold_path`); a backbone whose ends are within ``2 eps`` is a
+    closed loop (never unfolded: along a loop the geodesic distance from the start falls after half
+    way). Every point takes the arclength of its nearest backbone node. Monotonicity check: along an
+    open backbone the bins' mean geodesic distance from the start (in the link ``graph``) must grow;
+    a bin more than ``eps`` behind the bins before it would make the chain reverse and is dropped (less
+    is the zigzag of a tree path across a band of edge points, which the refinement and smoothing absorb).
+    """
+    paths = _tree_diameters(mst, groups)
+    closed = []
+    for path in paths:
+        B = X[path]
+        L_path = float(np.linalg.norm(np.diff(B, axis=0), axis=1).sum())
+        closed.append(float(np.linalg.norm(B[-1] - B[0])) <= 2.0 * eps and L_path > 6.0 * eps)
+    open_ids = [i for i, c in enumerate(closed) if not c and len(paths[i]) >= 3]
+    geo = None
+    if open_ids:  # geodesic distances from every open path's start, one batched Dijkstra
+        geo = dijkstra(graph, directed=True, indices=np.array([paths[i][0] for i in open_ids]), min_only=True)
+    out: list[_Piece | None] = []
+    for nodes, path, is_closed in zip(groups, paths, closed, strict=True):
+        if len(path) < 3:
+            out.append(None)
+            continue
+        if not is_closed:
+            path, geo_c = _unfold_path(graph, X, nodes, path, geo, eps)
+        B = X[path]
+        s_path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(B, axis=0), axis=1))])
+        _, near = cKDTree(B).query(X[nodes])  # arclength of every point = that of its nearest backbone node
+        b = (s_path[near] / spacing).astype(int)
+        Xs, _ = _bin_means(X[nodes], b)
+        As, _ = _bin_means(A[nodes], b)
+        if not is_closed:  # monotonicity: drop bins that run back along the seam
+            g, _ = _bin_means(geo_c[nodes][:, None], b)
+            g = g[:, 0]
+            keep = g >= np.maximum.accumulate(g) - eps
+            Xs, As = Xs[keep], As[keep]
+        if len(Xs) < 3:
+            out.append(None)
+            continue
+        lab = np.bincount(labels[nodes].astype(int), minlength=6)
+        out.append(_Piece(Xs, _unit(As), bool(is_closed), lab))
+    return out
 
 
 def _end_directions(X: np.ndarray, spacing: float, length: float) -> tuple[np.ndarray, np.ndarray]:
@@ -887,7 +992,8 @@ def chain_seams(
 
     Points are linked within ``eps`` when their approach directions differ by less than
     ``max_approach_angle``; each connected component is ordered along the longest path of its
-    minimum spanning tree (closed when the path's ends are within ``2 eps``) and binned at ``spacing``.
+    minimum spanning tree (closed when the path's ends are within ``2 eps``; open paths without the side
+    branches they fold back along) and binned at ``spacing`` (:func:`_cluster_pieces`).
     Pieces whose ends are close (``max_gap``) and collinear (``max_gap_angle``) are chained across the
     gap (:func:`bridge_pieces`). Each chain is snapped onto the side planes fitted within
     ``side_radius`` (``refine``), resampled at ``spacing``, smoothed (quadratic Savitzky-Golay over
@@ -907,14 +1013,16 @@ def chain_seams(
     w = np.linalg.norm(X[i] - X[j], axis=1) + 1e-12
     G = coo_matrix((w, (i, j)), shape=(M, M)).tocsr()
     n_comp, comp = connected_components(G, directed=False)
-    mst = minimum_spanning_tree(G + G.T)
+    G = G + G.T
+    mst = minimum_spanning_tree(G)
     sizes = np.bincount(comp, minlength=n_comp)
     pieces = []
-    raw = []
-    for c_id in np.flatnonzero(sizes >= 5)[np.argsort(-sizes[sizes >= 5])]:
-        piece = _cluster_piece(X, approach, np.flatnonzero(comp == c_id), mst, eps, spacing, weld_labels)
-        if piece is not None:
-            raw.append(piece)
+    big = np.flatnonzero(sizes >= 5)
+    order = np.argsort(comp, kind="stable")
+    members = np.split(order, np.cumsum(sizes)[:-1])
+    groups = [members[c] for c in big[np.argsort(-sizes[big], kind="stable")]]
+    raw = _cluster_pieces(X, approach, groups, G, mst, eps, spacing, weld_labels)
+    raw = [p for p in raw if p is not None]
     if refine and raw:  # all pieces' nodes in one batch (one search, one set of plane fits)
         cuts = np.cumsum([len(p.X) for p in raw])[:-1]
         fits = _refine_nodes(

@@ -18,6 +18,7 @@ from weldcell.plugins.scan_plan.seams import (
     _unit,
     adaptive_neighbourhood,
     bridge_pieces,
+    chain_seams,
     edge_intensity,
     edge_ratio,
     edge_scores,
@@ -361,6 +362,100 @@ def test_open_arcs_travel_the_same_way_round_as_a_closed_loop():
     line = np.column_stack([np.zeros(50), np.linspace(0.1, 0.0, 50), np.zeros(50)])
     Xl, _ = _orient(line, np.tile([0, 0, -1.0], (50, 1)), False)
     assert Xl[-1, 1] > Xl[0, 1]  # straight: along the principal axis, largest component positive
+
+
+# ----------------------------------------------------------------------------- ordering of sparse clusters
+
+SPARSE_SPACING = 0.005  # a coarse scan (e.g. a D415 at decimation 4): r ~ 5-6 mm, points ~2.5 mm apart
+
+
+def sparse_seam_cloud(kind: str, side_row_at_end: bool, seed: int = 0, step: float = 0.0025, R: float = 0.06):
+    """Weldable points of a sparse seam (a ``line`` 300 mm, an ``arc`` of 240 deg or a closed ``ring``,
+    radius ``R``) with a 50 mm side row 3-4.5 mm above it near one end, joined to the seam at its end
+    nearer the seam end (so the spanning-tree diameter runs back along it), and 5 short spurs across the
+    seam. Returns the points, the seam length and the true arclength parameter of a point."""
+    rng = np.random.default_rng(seed)
+    if kind == "line":
+        L = 0.3
+
+        def curve(u):
+            return np.column_stack([u, 0 * u, 0 * u])
+
+        def across(u):
+            return np.tile([0.0, 1.0, 0.0], (len(u), 1))
+
+        def param(X):
+            return X[:, 0]
+    else:
+        L = R * (2 * np.pi if kind == "ring" else np.deg2rad(240))
+
+        def curve(u):
+            return np.column_stack([R * np.cos(u / R), R * np.sin(u / R), 0 * u])
+
+        def across(u):
+            return np.column_stack([np.cos(u / R), np.sin(u / R), 0 * u])
+
+        def param(X):
+            return R * np.unwrap(np.arctan2(X[:, 1], X[:, 0]))
+
+    u = np.arange(0.0, L - 0.5 * step, step)
+    s0, s1 = (L - 0.07, L - 0.02) if side_row_at_end else (0.02, 0.07)
+    us = np.arange(s0, s1, step)
+    rise = (s1 - us) / (s1 - s0) if side_row_at_end else (us - s0) / (s1 - s0)
+    parts = [curve(u), curve(us) + (0.003 + 0.0015 * rise)[:, None] * np.array([0.0, 0.0, 1.0])]
+    for uk in np.linspace(0.1 * L, 0.9 * L, 5):
+        k = np.full(3, uk)
+        parts.append(curve(k) + np.array([0.0025, 0.005, 0.0075])[:, None] * across(k))
+    X = np.vstack(parts)
+    return X + rng.normal(0.0, NOISE, X.shape), L, param
+
+
+def chain_sparse(X: np.ndarray) -> list[SeamPolyline]:
+    """The chaining alone (no side-plane refinement) of weldable points ``X`` approached from above."""
+    n = len(X)
+    return chain_seams(
+        X,
+        np.tile([0.0, 0.0, 1.0], (n, 1)),
+        cKDTree(X),
+        np.arange(n),
+        np.full(n, CONCAVE, dtype=np.int8),
+        np.tile([0.0, 0.0, -1.0], (n, 1)),
+        eps=2 * SPARSE_SPACING,
+        spacing=SPARSE_SPACING,
+        side_radius=2 * SPARSE_SPACING,
+        min_length=0.02,
+        smooth_window=5,
+        min_crease_angle=np.deg2rad(35),
+        refine=False,
+        max_gap=0.0,
+    )
+
+
+@pytest.mark.parametrize("kind", ["line", "arc"])
+@pytest.mark.parametrize("side_row_at_end", [False, True])
+def test_sparse_seam_with_a_side_row_and_spurs_is_ordered_without_folding_back(kind, side_row_at_end):
+    # the minimum spanning tree's longest path runs out along the side row and back: before the fix the
+    # chain folded at that end (8-10 reversed steps, the seam 270-325 mm "long" for 300 mm)
+    for seed in range(2):
+        X, L, param = sparse_seam_cloud(kind, side_row_at_end, seed)
+        seams = chain_sparse(X)
+        assert len(seams) == 1 and not seams[0].closed
+        t = param(seams[0].points)
+        steps = np.diff(t) * np.sign(t[-1] - t[0])
+        assert np.all(steps > 0.5 * SPARSE_SPACING)  # monotone: every step advances along the seam
+        assert np.ptp(t) > L - 4 * SPARSE_SPACING  # both real ends kept (smoothing trims ~1 node each)
+        assert L - 4 * SPARSE_SPACING < seams[0].length < L
+
+
+@pytest.mark.parametrize("side_row_at_end", [False, True])
+def test_sparse_closed_loop_with_a_side_row_and_spurs_stays_one_closed_seam(side_row_at_end):
+    X, L, param = sparse_seam_cloud("ring", side_row_at_end)
+    seams = chain_sparse(X)
+    assert len(seams) == 1 and seams[0].closed
+    t = param(seams[0].points)
+    assert np.all(np.diff(t) > 0)  # counter-clockwise seen from the torch (from above), no reversal
+    assert np.ptp(t) > 0.95 * L
+    assert seams[0].length == pytest.approx(L, rel=0.03)
 
 
 # ----------------------------------------------------------------------------- one-sided / unseen creases
