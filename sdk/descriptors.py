@@ -32,6 +32,24 @@ DEVICE_KINDS = (
 )
 
 
+def import_adapter(module: str, requires: dict[str, str], what: str):
+    """Import a plugin's adapter module lazily (inside a factory or probe).
+
+    A vendor package listed in ``requires`` (module -> weldcell extra) that is missing becomes a
+    :class:`MissingExtraError` naming the extra to install; any other import error propagates.
+    """
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as e:
+        top = (e.name or "").split(".")[0]
+        for vendor, extra in requires.items():
+            if top == vendor.split(".")[0]:
+                raise MissingExtraError(what, vendor, extra) from e
+        raise
+
+
 @dataclass(frozen=True)
 class Descriptor:
     """Common fields of everything a plugin registers."""

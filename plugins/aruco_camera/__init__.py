@@ -2,20 +2,12 @@
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import DeviceSpec
+from weldcell.sdk.descriptors import DeviceSpec, import_adapter
 from weldcell.sdk.hookspecs import hookimpl
 
 
 def _adapter():
-    try:
-        from . import adapter
-    except ModuleNotFoundError as e:
-        if e.name and e.name.split(".")[0] == "cv2":
-            from weldcell.sdk.errors import MissingExtraError
-
-            raise MissingExtraError("device 'tactile.aruco-camera'", "cv2", "vision") from e
-        raise
-    return adapter
+    return import_adapter(f"{__name__}.adapter", {"cv2": "vision"}, "device 'tactile.aruco-camera'")
 
 
 def _factory(settings, ctx):

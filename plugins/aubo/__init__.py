@@ -2,20 +2,12 @@
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import DeviceSpec
+from weldcell.sdk.descriptors import DeviceSpec, import_adapter
 from weldcell.sdk.hookspecs import hookimpl
 
 
 def _adapter():
-    try:
-        from . import adapter
-    except ModuleNotFoundError as e:
-        if e.name and e.name.split(".")[0] == "pyaubo_sdk":
-            from weldcell.sdk.errors import MissingExtraError
-
-            raise MissingExtraError("device 'robot.aubo'", "pyaubo_sdk", "aubo") from e
-        raise
-    return adapter
+    return import_adapter(f"{__name__}.adapter", {"pyaubo_sdk": "aubo"}, "device 'robot.aubo'")
 
 
 def _factory(settings, ctx):
