@@ -32,11 +32,12 @@ DEVICE_KINDS = (
 )
 
 
-def import_adapter(module: str, requires: dict[str, str], what: str):
+def import_adapter(module: str, requires: dict[str, str], what: str, distribution: str = "weldcell"):
     """Import a plugin's adapter module lazily (inside a factory or probe).
 
     A vendor package listed in ``requires`` (module -> weldcell extra) that is missing becomes a
-    :class:`MissingExtraError` naming the extra to install; any other import error propagates.
+    :class:`MissingExtraError` naming the extra (of ``distribution``) to install; any other import
+    error propagates.
     """
     import importlib
 
@@ -46,7 +47,7 @@ def import_adapter(module: str, requires: dict[str, str], what: str):
         top = (e.name or "").split(".")[0]
         for vendor, extra in requires.items():
             if top == vendor.split(".")[0]:
-                raise MissingExtraError(what, vendor, extra) from e
+                raise MissingExtraError(what, vendor, extra, distribution) from e
         raise
 
 

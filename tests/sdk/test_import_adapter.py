@@ -17,4 +17,7 @@ def test_missing_vendor_package_names_the_extra(tmp_path, monkeypatch):
     assert e.value.fix == "pip install 'weldcell[demo]'"
     with pytest.raises(ModuleNotFoundError, match="not_listed_lib_abc"):  # not a vendor package: a real bug
         import_adapter("demo_broken_mod", {"not_a_vendor_lib_xyz": "demo"}, "device 'robot.demo'")
+    with pytest.raises(MissingExtraError) as e:
+        import_adapter("demo_adapter_mod", {"not_a_vendor_lib_xyz": "hw"}, "device 'robot.demo'", "my-dist")
+    assert e.value.fix == "pip install 'my-dist[hw]'"
     assert import_adapter("json", {}, "x").dumps([1]) == "[1]"
