@@ -12,9 +12,10 @@ point-to-plane residuals, iteratively re-weighted), and the update applied as an
 ``update="linear"`` applies the paper's matrix M^ of eq. 5 and projects it onto SO(3).
 
 Speed (same result as a plain implementation): the nearest-neighbour search re-queries only the source
-points that may have changed neighbour (:class:`NearestCache`), target normals are estimated only for
-the target points that become correspondences (:class:`LazyNormals`), and each iteration forms the
-6x6 normal equations with one (N, 7) matrix product.
+points that may have changed neighbour (:class:`NearestCache`) and runs in Morton order of the source
+points (cache-friendly), target normals are estimated only for the target points that become
+correspondences (:class:`LazyNormals`), and each iteration forms the 6x6 normal equations with one
+(N, 7) matrix product, in row blocks small enough that OpenBLAS stays on one thread.
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ ROBUST_KERNELS = (None, "huber", "tukey")
 UPDATES = ("exact", "linear")
 #: below this many query points one thread is faster than starting worker threads
 _THREADED_QUERY = 4000
+#: rows per BLAS call: small enough that OpenBLAS stays on one thread (its idle threads keep spinning
+#: after a threaded call and slow down the KD-tree's query threads on 2 cores)
+_BLAS_ROWS = 4096
 
 
 @dataclass
@@ -74,6 +78,45 @@ def _robust_weights(r: np.ndarray, kernel: str | None, scale: float | None) -> n
     return np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
 
 
+def _gram(J: np.ndarray) -> np.ndarray:
+    """``J^T J`` summed over row blocks of :data:`_BLAS_ROWS` (single-threaded BLAS calls)."""
+    G = J[:_BLAS_ROWS].T @ J[:_BLAS_ROWS]
+    for a in range(_BLAS_ROWS, len(J), _BLAS_ROWS):
+        blk = J[a : a + _BLAS_ROWS]
+        G += blk.T @ blk
+    return G
+
+
+def _rigid_apply(P: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``P R^T + t`` for (N, 3) points, in row blocks of :data:`_BLAS_ROWS` (see :func:`_gram`)."""
+    out = np.empty_like(P)
+    Rt = np.ascontiguousarray(T[:3, :3].T)
+    for a in range(0, len(P), _BLAS_ROWS):
+        np.matmul(P[a : a + _BLAS_ROWS], Rt, out=out[a : a + _BLAS_ROWS])
+    out += T[:3, 3]
+    return out
+
+
+def _morton_order(P: np.ndarray) -> np.ndarray:
+    """Indices that sort ``P`` along a 30-bit Morton (Z-order) curve over its bounding cube.
+
+    Queries in this order visit the KD-tree's nodes in nearly the same sequence from one point to
+    the next, which keeps them in cache (10-20 % faster searches on unordered clouds).
+    """
+
+    def spread(v: np.ndarray) -> np.ndarray:  # 10 bits -> every third bit
+        v = v.astype(np.uint32)
+        v = (v | (v << 16)) & np.uint32(0x030000FF)
+        v = (v | (v << 8)) & np.uint32(0x0300F00F)
+        v = (v | (v << 4)) & np.uint32(0x030C30C3)
+        return (v | (v << 2)) & np.uint32(0x09249249)
+
+    lo = P.min(axis=0)
+    ext = float((P.max(axis=0) - lo).max())
+    q = ((P - lo) * (1023.0 / max(ext, 1e-300))).astype(np.uint32)
+    return np.argsort(spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2))
+
+
 def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rows ``[s x n, n | b]`` of eq. 7 as one (N, 7) array (the cross product column by column)."""
     J = np.empty((len(src), 7))
@@ -89,12 +132,9 @@ def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _solve(J: np.ndarray, weights: np.ndarray | None, rcond: float) -> np.ndarray:
     """Eq. 8 on the rows ``J = [A | b]``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse."""
-    # einsum, not BLAS: OpenBLAS's threads keep spinning after a call and slow down the KD-tree threads
-    G = (
-        np.einsum("ni,nj->ij", J * weights[:, None], J)
-        if weights is not None
-        else np.einsum("ni,nj->ij", J, J)
-    )
+    if weights is not None:
+        J = J * np.sqrt(weights)[:, None]
+    G = _gram(J)
     return np.linalg.pinv(G[:6, :6], rcond=rcond, hermitian=True) @ G[:6, 6]
 
 
@@ -172,7 +212,9 @@ class NearestCache:
     so while the motion is large (the first ICP iterations) plain k=1 queries are made; pair queries
     start once the motion predicted for the next step (ICP converges about geometrically: the last
     step's motion times its ratio to the step before) falls below twice the typical gap.
-    ``query`` must be called with the source points in the same order every time.
+    Searches run in Morton order of the first query's points (:func:`_morton_order`); the results come
+    back in the caller's order. ``query`` must be called with the source points in the same order every
+    time.
     """
 
     def __init__(self, tree: cKDTree, target: np.ndarray, d_max: float, n_source: int, margin: float = 1.5):
@@ -187,6 +229,7 @@ class NearestCache:
         self._moves: list[float] = []
         self._scale = 0.0  # median nearest distance of the last full query (m)
         self._own_anchor = False  # the anchor array is the caller's until the first partial update
+        self.order: np.ndarray | None = None  # search order (Morton) of the source points
 
     def _step_motion(self, pts: np.ndarray) -> float:
         """Median motion of the points since the previous call (on every 8th point)."""
@@ -201,30 +244,35 @@ class NearestCache:
         gap = self.typical_gap if self.typical_gap > 0 else 0.15 * self._scale
         return predicted < 2.0 * gap
 
+    def _full(self, pts: np.ndarray) -> np.ndarray:
+        """A plain k=1 query of all points (in search order) -> distances; sets ``idx``."""
+        if self.order is None:
+            self.order = _morton_order(pts) if len(pts) > _THREADED_QUERY else np.arange(len(pts))
+        d, i = _query(self.tree, pts[self.order], 1, self.d_max)
+        dist = np.empty(len(pts))
+        dist[self.order] = d
+        self.idx[self.order] = np.where(np.isfinite(d), i, -1)
+        self.n_queries += len(pts)
+        found = d[::8][np.isfinite(d[::8])]  # every 8th point is plenty for a typical distance
+        self._scale = float(np.median(found)) if len(found) else self.d_max
+        return dist
+
     def query(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distances, indices) of the nearest target within ``d_max`` (inf / -1 where none)."""
         if self.anchor is None:  # first call: a plain full query
-            dist, i = _query(self.tree, pts, 1, self.d_max)
-            self.n_queries += len(pts)
-            self.idx = np.where(np.isfinite(dist), i, -1)
+            dist = self._full(pts)
             self.anchor, self._prev, self._own_anchor = pts, pts, False
-            found = dist[np.isfinite(dist)]
-            self._scale = float(np.median(found)) if len(found) else self.d_max
             return dist, self.idx.copy()
         self._moves.append(self._step_motion(pts))
         self._prev = pts
         diff = pts - self.anchor
         moved = np.einsum("ij,ij->i", diff, diff)
-        stale = np.flatnonzero(moved >= self.gap * np.abs(self.gap))
+        stale = self.order[(moved >= self.gap * np.abs(self.gap))[self.order]]  # in search order
         pairs = self._want_pairs()
         if len(stale) == len(pts) and not pairs:  # everything moved far: a plain full query
-            dist, i = _query(self.tree, pts, 1, self.d_max)
-            self.n_queries += len(pts)
-            self.idx = np.where(np.isfinite(dist), i, -1)
+            dist = self._full(pts)
             self.gap.fill(-1.0)
             self.anchor, self._own_anchor = pts, False
-            found = dist[np.isfinite(dist)]
-            self._scale = float(np.median(found)) if len(found) else self.d_max
             return dist, self.idx.copy()
         if len(stale):
             q = pts[stale]
@@ -246,13 +294,18 @@ class NearestCache:
                 g = self.gap[::8]
                 g = g[g >= 0]
                 self.typical_gap = float(np.median(g)) if len(g) else self.typical_gap
-        has = np.flatnonzero(self.idx >= 0)
-        dist = np.full(len(pts), np.inf)
-        diff = pts[has] - self.target[self.idx[has]]
-        dh = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        dist[has] = dh
         out = self.idx.copy()
-        far = has[dh > self.d_max]
+        if (out >= 0).all():  # the common case: no gathers / scatters
+            diff = pts - np.take(self.target, out, axis=0)
+            dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+            far = np.flatnonzero(dist > self.d_max)
+        else:
+            has = np.flatnonzero(out >= 0)
+            dist = np.full(len(pts), np.inf)
+            diff = pts[has] - np.take(self.target, out[has], axis=0)
+            dh = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+            dist[has] = dh
+            far = has[dh > self.d_max]
         dist[far], out[far] = np.inf, -1
         return dist, out
 
@@ -344,7 +397,8 @@ def linear_icp(
             f"target_tree holds {target_tree.n} points, the target {len(Tg)}",
             "pass a cKDTree built on this target, or target_tree=None",
         )
-    tree = target_tree if target_tree is not None else cKDTree(Tg, leafsize=32)
+    # sliding-midpoint splits: ~30 % faster to build than median splits, queries as fast or faster
+    tree = target_tree if target_tree is not None else cKDTree(Tg, leafsize=32, balanced_tree=False)
     lazy = None
     if target_normals is None:
         lazy = LazyNormals(Tg, tree, normal_k)
@@ -366,8 +420,7 @@ def linear_icp(
     last = None
     dist0 = dist = None
     for it in range(max_iterations + 1):
-        Ss = np.einsum("ij,kj->ik", S, T[:3, :3])  # not BLAS (see _solve)
-        Ss += T[:3, 3]
+        Ss = _rigid_apply(S, T)
         dist, idx = cache.query(Ss)
         dist0 = dist if dist0 is None else dist0
         if (idx >= 0).all():
@@ -381,7 +434,7 @@ def linear_icp(
         if n_in:
             if lazy is not None:
                 lazy.ensure(j)
-            nc = table[j]
+            nc = np.take(table, j, axis=0)
             res = np.einsum("ij,ij->i", s_in, nc[:, :3])
             res -= nc[:, 3]  # (s - t) . n, the point-to-plane residual
             prmse = float(np.sqrt(np.einsum("i,i", res, res) / n_in))

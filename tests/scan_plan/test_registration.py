@@ -86,10 +86,11 @@ def test_single_linear_step_solves_a_small_motion():
     assert np.allclose(x, [0.0, 0.0, 1e-4, 1e-4, -2e-4, 5e-5], atol=2e-7)
 
 
-def test_nearest_cache_matches_a_full_query():
+@pytest.mark.parametrize("n_source", [2000, 6000])  # 6000: searched in Morton order, results in caller order
+def test_nearest_cache_matches_a_full_query(n_source):
     rng = np.random.default_rng(5)
     target = rng.uniform(0, 1, (3000, 3))
-    source = rng.uniform(0, 1, (2000, 3))
+    source = rng.uniform(0, 1, (n_source, 3))
     tree = cKDTree(target)
     cache = NearestCache(tree, target, 0.08, len(source))
     pts = source
