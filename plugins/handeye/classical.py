@@ -234,6 +234,17 @@ def _as_poses(T: np.ndarray, what: str) -> np.ndarray:
     return T
 
 
+def _matched_poses(T_base_flange, T_cam_target) -> tuple[np.ndarray, np.ndarray]:
+    """Flange and board poses as (N, 4, 4) stacks, at least 3 matched pairs."""
+    G = _as_poses(T_base_flange, "flange poses")
+    C = _as_poses(T_cam_target, "board poses")
+    if len(G) != len(C) or len(G) < 3:
+        raise DataError(
+            f"{len(G)} flange poses and {len(C)} board poses; need >= 3 matched pairs", "collect more poses"
+        )
+    return G, C
+
+
 def solve_hand_eye(
     T_base_flange: np.ndarray,
     T_cam_target: np.ndarray,
@@ -251,12 +262,7 @@ def solve_hand_eye(
     method = method.lower()
     if method not in HAND_EYE_METHODS:
         raise DataError(f"unknown AX=XB method '{method}'", f"use one of {', '.join(HAND_EYE_METHODS)}")
-    G = _as_poses(T_base_flange, "flange poses")
-    C = _as_poses(T_cam_target, "board poses")
-    if len(G) != len(C) or len(G) < 3:
-        raise DataError(
-            f"{len(G)} flange poses and {len(C)} board poses; need >= 3 matched pairs", "collect more poses"
-        )
+    G, C = _matched_poses(T_base_flange, T_cam_target)
     if config == "eye-on-base":
         G = np.linalg.inv(G)  # base2gripper plays gripper2base; the result is cam2base
     cv2 = _cv2() if backend in ("auto", "opencv") else None
@@ -311,12 +317,7 @@ def solve_robot_world(
     method = method.lower()
     if method not in ROBOT_WORLD_METHODS:
         raise DataError(f"unknown AX=YB method '{method}'", f"use one of {', '.join(ROBOT_WORLD_METHODS)}")
-    G = _as_poses(T_base_flange, "flange poses")
-    C = _as_poses(T_cam_target, "board poses")
-    if len(G) != len(C) or len(G) < 3:
-        raise DataError(
-            f"{len(G)} flange poses and {len(C)} board poses; need >= 3 matched pairs", "collect more poses"
-        )
+    G, C = _matched_poses(T_base_flange, T_cam_target)
     # OpenCV form: cTw_i · wTb = cTg · gTb_i
     if config == "eye-on-base":
         A, B = np.linalg.inv(C), np.linalg.inv(G)  # c=target, w=camera, g=flange
