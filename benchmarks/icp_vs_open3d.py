@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 from weldcell.plugins.scan_plan.denoise import pca_normals, voxel_downsample
+from weldcell.plugins.scan_plan.nearest import backend_name
 from weldcell.plugins.scan_plan.registration import linear_icp
 from weldcell.sdk.cloud import read_cloud
 from weldcell.sdk.geometry import T_from_rotvec, invert, pose_error, transform_points
@@ -103,6 +104,7 @@ def main() -> None:
         "inlier RMSE (mm) | error vs reference (mm / deg) | time (ms) | time ratio ours/Open3D |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
+    notes: list[str] = []
     for name, s, t, T_ref, d_max in cases:
         n = pca_normals(t, k=20)
         run = open3d_icp(s, t, n, d_max, args.iterations)
@@ -129,6 +131,10 @@ def main() -> None:
             f"{ro.fitness * len(s) / len(t):.4f} | {ro.inlier_rmse * 1e3:.2f} | "
             f"{e_o3d[0] * 1e3:.2f} / {np.rad2deg(e_o3d[1]):.3f} | {t_o3d * 1e3:.1f} | 1.00 |"
         )
+        dT = float(np.abs(r.T - ro.transformation).max())
+        notes.append(f"{name}: largest difference of the two transforms {dT:.1e}")
+    print(f"\nOur nearest-neighbour back-end: {backend_name()}; Open3D {o3d.__version__}.")
+    print("\n".join(notes))
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+from weldcell.sdk.arrays import col_max, col_min, row_sums
 from weldcell.sdk.errors import DataError
 
 #: rows of query points per chunk of the radius search (bounds the memory of the pair arrays)
@@ -242,10 +243,10 @@ def masked_covariance(D: tuple[np.ndarray, ...], w: np.ndarray) -> tuple[np.ndar
     """Covariance (N, 3, 3) of the rows of offsets ``D`` = (x, y, z), each (N, K), weighted by ``w``
     (N, K; a boolean mask or weights), and the weight sums (N,)."""
     wf = np.asarray(w, dtype=float)
-    cnt = wf.sum(1)
+    cnt = row_sums(wf)
     inv = 1.0 / np.maximum(cnt, 1e-300)
     Dw = [d * wf for d in D]
-    mean = [dw.sum(1) * inv for dw in Dw]
+    mean = [row_sums(dw) * inv for dw in Dw]
     C = np.empty((len(wf), 3, 3))
     for a in range(3):
         for b in range(a, 3):
@@ -377,7 +378,7 @@ def _bilateral_table(
     h = D[0] * N[:, :1] + D[1] * N[:, 1:2] + D[2] * N[:, 2:]  # <n_p, q - p>
     d2 = np.where(w, nb.dist, 0.0) ** 2
     wt = np.exp(-d2 / (2.0 * sc * sc) - (h * h) / (2.0 * ss * ss)) * w
-    dp = (wt * h).sum(1) / wt.sum(1)  # > 0: p is its own neighbour
+    dp = np.einsum("nk,nk->n", wt, h) / row_sums(wt)  # > 0: p is its own neighbour
     return P + dp[:, None] * N, N
 
 
@@ -402,8 +403,8 @@ def voxel_downsample(
         voxel_size = factor * sp
     v = _check_positive(voxel_size, "voxel_size")
     keys = np.floor(P / v).astype(np.int64)  # a grid anchored at the origin: re-voxelising is stable
-    keys -= keys.min(axis=0)
-    dims = keys.max(axis=0) + 1
+    keys -= col_min(keys)
+    dims = col_max(keys) + 1
     if float(np.prod(dims.astype(float))) < 2**62:
         flat = np.ravel_multi_index(keys.T, dims)
         _, inv = np.unique(flat, return_inverse=True)

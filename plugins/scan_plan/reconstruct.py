@@ -12,13 +12,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, rotation_angle
 from weldcell.sdk.scan import PosedScan  # noqa: F401  (re-exported: the scan type of this stage)
 
 from .denoise import as_points, voxel_downsample
+from .nearest import PointTree
 from .registration import IcpResult, linear_icp
 
 Progress = Callable[[int, int, str], None]
@@ -55,7 +55,7 @@ def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
 
 
 def _fitness(
-    dist: np.ndarray | None, src: np.ndarray, T: np.ndarray, tree: cKDTree, d_fit: float, d_max: float
+    dist: np.ndarray | None, src: np.ndarray, T: np.ndarray, tree: PointTree, d_fit: float, d_max: float
 ) -> float:
     """Eq. 20 of ``src`` mapped by ``T`` against the model of ``tree``, from the ICP's own nearest-model
     distances when they reach far enough (``d_fit <= d_max``), else by a search."""
@@ -155,7 +155,7 @@ def reconstruct(
             src = down(P)
             # one KD-tree of the model per view, shared by the normals (computed only where the view
             # overlaps the model), the correspondence search and eq. 20 before and after
-            tree = cKDTree(model, leafsize=32)
+            tree = PointTree(model)
             res = linear_icp(
                 src,
                 model,

@@ -15,7 +15,8 @@ Speed (same result as a plain implementation): the nearest-neighbour search re-q
 points that may have changed neighbour (:class:`NearestCache`) and runs in Morton order of the source
 points (cache-friendly), target normals are estimated only for the target points that become
 correspondences (:class:`LazyNormals`), and each iteration forms the 6x6 normal equations with one
-(N, 7) matrix product, in row blocks small enough that OpenBLAS stays on one thread.
+(N, 7) matrix product, in row blocks small enough that OpenBLAS stays on one thread. The searches
+use :class:`~.nearest.PointTree` (pykdtree, OpenMP).
 """
 
 from __future__ import annotations
@@ -24,10 +25,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
+from weldcell.sdk.arrays import col_max, col_min, row_dot
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, orthonormalize
 
 from .denoise import _knn_normals, as_points
+from .nearest import PointTree
 
 ROBUST_KERNELS = (None, "huber", "tukey")
 UPDATES = ("exact", "linear")
@@ -79,11 +82,11 @@ def _robust_weights(r: np.ndarray, kernel: str | None, scale: float | None) -> n
 
 
 def _gram(J: np.ndarray) -> np.ndarray:
-    """``J^T J`` summed over row blocks of :data:`_BLAS_ROWS` (single-threaded BLAS calls)."""
-    G = J[:_BLAS_ROWS].T @ J[:_BLAS_ROWS]
-    for a in range(_BLAS_ROWS, len(J), _BLAS_ROWS):
-        blk = J[a : a + _BLAS_ROWS]
-        G += blk.T @ blk
+    """``J J^T`` of the (7, N) rows summed over column blocks of :data:`_BLAS_ROWS` (one-thread BLAS)."""
+    G = J[:, :_BLAS_ROWS] @ J[:, :_BLAS_ROWS].T
+    for a in range(_BLAS_ROWS, J.shape[1], _BLAS_ROWS):
+        blk = J[:, a : a + _BLAS_ROWS]
+        G += blk @ blk.T
     return G
 
 
@@ -93,7 +96,8 @@ def _rigid_apply(P: np.ndarray, T: np.ndarray) -> np.ndarray:
     Rt = np.ascontiguousarray(T[:3, :3].T)
     for a in range(0, len(P), _BLAS_ROWS):
         np.matmul(P[a : a + _BLAS_ROWS], Rt, out=out[a : a + _BLAS_ROWS])
-    out += T[:3, 3]
+    for k in range(3):  # column by column: broadcasting a (3,) row over (N, 3) is ~8x slower
+        out[:, k] += T[k, 3]
     return out
 
 
@@ -111,31 +115,38 @@ def _morton_order(P: np.ndarray) -> np.ndarray:
         v = (v | (v << 4)) & np.uint32(0x030C30C3)
         return (v | (v << 2)) & np.uint32(0x09249249)
 
-    lo = P.min(axis=0)
-    ext = float((P.max(axis=0) - lo).max())
+    lo = col_min(P)
+    ext = float((col_max(P) - lo).max())
     q = ((P - lo) * (1023.0 / max(ext, 1e-300))).astype(np.uint32)
     return np.argsort(spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2))
 
 
 def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rows ``[s x n, n | b]`` of eq. 7 as one (N, 7) array (the cross product column by column)."""
-    J = np.empty((len(src), 7))
-    s0, s1, s2 = src[:, 0], src[:, 1], src[:, 2]
-    n0, n1, n2 = nrm[:, 0], nrm[:, 1], nrm[:, 2]
-    np.subtract(s1 * n2, s2 * n1, out=J[:, 0])
-    np.subtract(s2 * n0, s0 * n2, out=J[:, 1])
-    np.subtract(s0 * n1, s1 * n0, out=J[:, 2])
-    J[:, 3:6] = nrm
-    J[:, 6] = b
+    """The rows ``[s x n, n | b]`` of eq. 7, stored transposed as one (7, N) array (contiguous writes)."""
+    J = np.empty((7, len(src)))
+    s0, s1, s2 = src.T
+    n0, n1, n2 = nrm.T
+    np.subtract(s1 * n2, s2 * n1, out=J[0])
+    np.subtract(s2 * n0, s0 * n2, out=J[1])
+    np.subtract(s0 * n1, s1 * n0, out=J[2])
+    J[3:6] = nrm.T
+    J[6] = b
     return J
 
 
 def _solve(J: np.ndarray, weights: np.ndarray | None, rcond: float) -> np.ndarray:
-    """Eq. 8 on the rows ``J = [A | b]``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse."""
+    """Eq. 8 on the rows ``J = [A | b]^T``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse.
+
+    The pseudo-inverse of the symmetric 6x6 ``A^T A`` is taken through its eigen-decomposition (as
+    ``pinv(..., hermitian=True)``: eigenvalues below ``rcond`` x the largest count as zero).
+    """
     if weights is not None:
-        J = J * np.sqrt(weights)[:, None]
+        J = J * np.sqrt(weights)[None, :]
     G = _gram(J)
-    return np.linalg.pinv(G[:6, :6], rcond=rcond, hermitian=True) @ G[:6, 6]
+    w, V = np.linalg.eigh(G[:6, :6])
+    keep = np.abs(w) > rcond * np.abs(w).max()
+    Vk = V[:, keep]
+    return Vk @ ((Vk.T @ G[:6, 6]) / w[keep])
 
 
 def point_to_plane_step(
@@ -192,7 +203,7 @@ def _check_transform(T: np.ndarray, what: str) -> np.ndarray:
     return T
 
 
-def _query(tree: cKDTree, q: np.ndarray, k: int, bound: float) -> tuple[np.ndarray, np.ndarray]:
+def _query(tree: PointTree | cKDTree, q: np.ndarray, k: int, bound: float) -> tuple[np.ndarray, np.ndarray]:
     workers = -1 if len(q) > _THREADED_QUERY else 1  # thread start-up costs more than it saves on few points
     return tree.query(q, k=k, distance_upper_bound=bound, workers=workers)
 
@@ -217,7 +228,9 @@ class NearestCache:
     time.
     """
 
-    def __init__(self, tree: cKDTree, target: np.ndarray, d_max: float, n_source: int, margin: float = 1.5):
+    def __init__(
+        self, tree: PointTree | cKDTree, target: np.ndarray, d_max: float, n_source: int, margin: float = 1.5
+    ):
         self.tree, self.target, self.d_max = tree, target, float(d_max)
         self.bound = margin * self.d_max
         self.idx = np.full(n_source, -1, dtype=np.int64)
@@ -230,11 +243,13 @@ class NearestCache:
         self._scale = 0.0  # median nearest distance of the last full query (m)
         self._own_anchor = False  # the anchor array is the caller's until the first partial update
         self.order: np.ndarray | None = None  # search order (Morton) of the source points
+        self._reordered = False  # False: the search order is the caller's order
 
     def _step_motion(self, pts: np.ndarray) -> float:
-        """Median motion of the points since the previous call (on every 8th point)."""
-        d = pts[::8] - self._prev[::8]
-        return float(np.sqrt(np.median(np.einsum("ij,ij->i", d, d))))
+        """Median motion of the points since the previous call (on ~1000 of them)."""
+        step = max(1, len(pts) // 1024)
+        d = pts[::step] - self._prev[::step]
+        return float(np.sqrt(np.median(row_dot(d, d))))
 
     def _want_pairs(self) -> bool:
         if len(self._moves) < 2:
@@ -247,11 +262,17 @@ class NearestCache:
     def _full(self, pts: np.ndarray) -> np.ndarray:
         """A plain k=1 query of all points (in search order) -> distances; sets ``idx``."""
         if self.order is None:
-            self.order = _morton_order(pts) if len(pts) > _THREADED_QUERY else np.arange(len(pts))
-        d, i = _query(self.tree, pts[self.order], 1, self.d_max)
-        dist = np.empty(len(pts))
-        dist[self.order] = d
-        self.idx[self.order] = np.where(np.isfinite(d), i, -1)
+            self._reordered = len(pts) > _THREADED_QUERY
+            self.order = _morton_order(pts) if self._reordered else np.arange(len(pts))
+        if self._reordered:
+            d, i = _query(self.tree, pts[self.order], 1, self.d_max)
+            dist = np.empty(len(pts))
+            dist[self.order] = d
+            self.idx[self.order] = np.where(np.isfinite(d), i, -1)
+        else:
+            dist, i = _query(self.tree, pts, 1, self.d_max)
+            self.idx[:] = np.where(np.isfinite(dist), i, -1)
+            d = dist
         self.n_queries += len(pts)
         found = d[::8][np.isfinite(d[::8])]  # every 8th point is plenty for a typical distance
         self._scale = float(np.median(found)) if len(found) else self.d_max
@@ -266,8 +287,9 @@ class NearestCache:
         self._moves.append(self._step_motion(pts))
         self._prev = pts
         diff = pts - self.anchor
-        moved = np.einsum("ij,ij->i", diff, diff)
-        stale = self.order[(moved >= self.gap * np.abs(self.gap))[self.order]]  # in search order
+        moved = row_dot(diff, diff)
+        is_stale = moved >= self.gap * np.abs(self.gap)
+        stale = self.order[is_stale[self.order]] if self._reordered else np.flatnonzero(is_stale)
         pairs = self._want_pairs()
         if len(stale) == len(pts) and not pairs:  # everything moved far: a plain full query
             dist = self._full(pts)
@@ -291,21 +313,13 @@ class NearestCache:
                 self.anchor, self._own_anchor = self.anchor.copy(), True
             self.idx[stale], self.gap[stale], self.anchor[stale] = idx, gap, q
             if pairs:
-                g = self.gap[::8]
+                g = self.gap[:: max(1, len(self.gap) // 1024)]
                 g = g[g >= 0]
                 self.typical_gap = float(np.median(g)) if len(g) else self.typical_gap
         out = self.idx.copy()
-        if (out >= 0).all():  # the common case: no gathers / scatters
-            diff = pts - np.take(self.target, out, axis=0)
-            dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-            far = np.flatnonzero(dist > self.d_max)
-        else:
-            has = np.flatnonzero(out >= 0)
-            dist = np.full(len(pts), np.inf)
-            diff = pts[has] - np.take(self.target, out[has], axis=0)
-            dh = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-            dist[has] = dh
-            far = has[dh > self.d_max]
+        diff = pts - np.take(self.target, out, axis=0, mode="clip")  # -1 clips to 0: masked below
+        dist = np.sqrt(row_dot(diff, diff))
+        far = np.flatnonzero((dist > self.d_max) | (out < 0))
         dist[far], out[far] = np.inf, -1
         return dist, out
 
@@ -319,7 +333,7 @@ class LazyNormals:
     ``(n_j, n_j . t_j)`` for the points estimated so far.
     """
 
-    def __init__(self, target: np.ndarray, tree: cKDTree, k: int = 20):
+    def __init__(self, target: np.ndarray, tree: PointTree | cKDTree, k: int = 20):
         self.target, self.tree, self.k = target, tree, min(int(k), len(target))
         self.table = np.empty((len(target), 4))
         self.known = np.zeros(len(target), dtype=bool)
@@ -364,7 +378,7 @@ def linear_icp(
     robust_scale: float | None = None,
     update: str = "exact",
     normal_k: int = 20,
-    target_tree: cKDTree | None = None,
+    target_tree: PointTree | cKDTree | None = None,
 ) -> IcpResult:
     """Register ``source`` onto ``target`` by linear point-to-plane ICP (paper 000, eqs. 2-8).
 
@@ -375,7 +389,7 @@ def linear_icp(
     the next both fall below ``tolerance`` (Open3D's criterion), when the update is smaller than
     ``tolerance`` (rad and m), or after ``max_iterations``.
     ``robust`` = "huber" | "tukey" re-weights the residuals (scale ``robust_scale`` m, or adaptive).
-    ``target_tree`` lets a caller reuse a ``cKDTree`` of ``target``.
+    ``target_tree`` lets a caller reuse a :class:`~.nearest.PointTree` (or ``cKDTree``) of ``target``.
     """
     S = np.ascontiguousarray(as_points(source, "ICP source", min_points=3))
     Tg = as_points(target, "ICP target", min_points=3)
@@ -395,10 +409,9 @@ def linear_icp(
     if target_tree is not None and target_tree.n != len(Tg):
         raise DataError(
             f"target_tree holds {target_tree.n} points, the target {len(Tg)}",
-            "pass a cKDTree built on this target, or target_tree=None",
+            "pass a PointTree built on this target, or target_tree=None",
         )
-    # sliding-midpoint splits: ~30 % faster to build than median splits, queries as fast or faster
-    tree = target_tree if target_tree is not None else cKDTree(Tg, leafsize=32, balanced_tree=False)
+    tree = target_tree if target_tree is not None else PointTree(Tg)
     lazy = None
     if target_normals is None:
         lazy = LazyNormals(Tg, tree, normal_k)
@@ -427,7 +440,7 @@ def linear_icp(
             n_in, s_in, j, d_in = n_source, Ss, idx, dist
         else:
             sel = np.flatnonzero(idx >= 0)
-            n_in, s_in, j, d_in = len(sel), Ss[sel], idx[sel], dist[sel]
+            n_in, s_in, j, d_in = len(sel), np.take(Ss, sel, axis=0), np.take(idx, sel), np.take(dist, sel)
         fit, frac = n_in / n_target, n_in / n_source
         rmse = float(np.sqrt(np.einsum("i,i", d_in, d_in) / n_in)) if n_in else 0.0
         prmse = 0.0
@@ -435,7 +448,7 @@ def linear_icp(
             if lazy is not None:
                 lazy.ensure(j)
             nc = np.take(table, j, axis=0)
-            res = np.einsum("ij,ij->i", s_in, nc[:, :3])
+            res = row_dot(s_in, nc)
             res -= nc[:, 3]  # (s - t) . n, the point-to-plane residual
             prmse = float(np.sqrt(np.einsum("i,i", res, res) / n_in))
         last = (fit, frac, rmse, prmse)
@@ -448,7 +461,8 @@ def linear_icp(
         w = _robust_weights(res, robust, robust_scale) if robust else None
         x = _solve(_system_rows(s_in, nc[:, :3], -res), w, 1e-10)
         T = _step_matrix(x, update) @ T
-        T[:3, :3] = orthonormalize(T[:3, :3])
+        if update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
+            T[:3, :3] = orthonormalize(T[:3, :3])
         d_rot, d_tr = float(np.linalg.norm(x[:3])), float(np.linalg.norm(x[3:]))
         history.append(
             dict(
@@ -471,6 +485,7 @@ def linear_icp(
             "check the initial pose (kinematics + hand-eye) or raise max_correspondence_distance",
         )
     fit, frac, rmse, prmse = last
+    T[:3, :3] = orthonormalize(T[:3, :3])
     return IcpResult(
         T=T,
         fitness=fit,

@@ -37,6 +37,7 @@ from scipy.signal import savgol_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spanning_tree
 from scipy.spatial import cKDTree
+from weldcell.sdk.arrays import row_sums
 from weldcell.sdk.errors import DataError
 
 from .denoise import NeighbourTable, knn_table, largest_eigvec, masked_covariance, offsets, smallest_eigvec
@@ -164,7 +165,7 @@ def adaptive_neighbourhood(
         table = knn_table(P, k, radius=2.0 * r, tree=tree)
     idx, dist = table.idx[:, 1 : k + 1], table.dist[:, 1 : k + 1]
     finite = np.isfinite(dist)
-    few = np.flatnonzero(finite.sum(axis=1) < m)
+    few = np.flatnonzero(row_sums(finite) < m)
     if len(few):  # not m neighbours within the table's reach: search those rows without a bound
         d_f, i_f = tree.query(P[few], k=k + 1, workers=-1)
         idx, dist = idx.copy(), dist.copy()
@@ -173,7 +174,7 @@ def adaptive_neighbourhood(
     d_m = np.partition(dist, m - 1, axis=1)[:, m - 1]
     valid = (dist < r) | (dist <= d_m[:, None])
     r_eff = np.maximum(r, d_m)
-    width = int(valid.sum(axis=1).max())
+    width = int(row_sums(valid).max())
     if width < k:  # drop the columns no row needs (the members first): narrower arrays below
         keep = np.argpartition(np.where(valid, dist, np.inf), width - 1, axis=1)[:, :width]
         idx, dist, valid = (np.take_along_axis(a, keep, 1) for a in (idx, dist, valid))
@@ -186,7 +187,7 @@ def adaptive_neighbourhood(
 def edge_intensity(P: np.ndarray, nb: Neighbourhood) -> np.ndarray:
     """Eq. 12: ``I_p = |p - (1/n) sum q_i| / r`` with the neighbourhood's (grown) radius as ``r``."""
     w = nb.valid.astype(float)
-    inv = 1.0 / w.sum(axis=1)
+    inv = 1.0 / row_sums(w)
     s = [np.einsum("nk,nk->n", w, d) * inv for d in offsets(P, nb.idx)]  # centroid - p
     return np.sqrt(s[0] ** 2 + s[1] ** 2 + s[2] ** 2) / nb.r_eff
 
@@ -233,16 +234,17 @@ def structure_tensor(
     gg = grad[:, :, None] * grad[:, None, :]
     H = grad_p[:, :, None] * grad_p[:, None, :]
     H = H + (w[:, None, :] @ gg.reshape(-1, 9)[idx]).reshape(-1, 3, 3)
-    return H / (1.0 + w.sum(axis=1))[:, None, None]
+    return H / (1.0 + row_sums(w))[:, None, None]
 
 
 def tensor_weights(nb: Neighbourhood, sigma: float | None = None) -> np.ndarray:
     """Eq. 17 weights ``G(p, q)`` (N, K) of the neighbours (0 outside N_r(p)), up to the constant
     ``1/(sigma sqrt(2 pi))`` (it cancels in eq. 15's normalisation)."""
     if sigma is None:
-        cnt = nb.valid.sum(1)
-        mu = (nb.dist * nb.valid).sum(1) / cnt
-        s = np.sqrt(np.maximum((nb.dist**2 * nb.valid).sum(1) / cnt - mu**2, 0.0))
+        cnt = row_sums(nb.valid)
+        dv = nb.dist * nb.valid
+        mu = row_sums(dv) / cnt
+        s = np.sqrt(np.maximum(np.einsum("nk,nk->n", dv, nb.dist) / cnt - mu**2, 0.0))
         s = np.maximum(s, 1e-3 * nb.r_eff)
     else:
         s = np.full(len(nb.idx), float(sigma))
@@ -255,7 +257,7 @@ def tensor_trace(
     """``Tr(H_p)`` (N,) of eq. 15 without forming H: ``(|g_p|^2 + sum G |g_q|^2) / (1 + sum G)``."""
     w = tensor_weights(nb, sigma) if weights is None else weights
     g2 = np.einsum("ij,ij->i", grad, grad)
-    return (g2 + np.einsum("nk,nk->n", w, g2[nb.idx])) / (1.0 + w.sum(axis=1))
+    return (g2 + np.einsum("nk,nk->n", w, g2[nb.idx])) / (1.0 + row_sums(w))
 
 
 def edge_ratio(H: np.ndarray, floor: float = 1.0) -> np.ndarray:
