@@ -79,7 +79,15 @@ def view_poses(
     return out
 
 
-def run_case(kind: str, seed: int, views: int, hand_eye_error: bool, low_views: int = 4) -> dict:
+def run_case(
+    kind: str,
+    seed: int,
+    views: int,
+    hand_eye_error: bool,
+    low_views: int = 4,
+    anchor: str = "mean",
+    prior: tuple[float, float] | None = None,
+) -> dict:
     wp = make_workpiece(kind, **WORKPIECES[kind])
     seam = wp.seams_in_world()[0]
     target = seam.points.mean(axis=0)
@@ -102,7 +110,9 @@ def run_case(kind: str, seed: int, views: int, hand_eye_error: bool, low_views: 
         viewpoints.append(T_wc[:3, 3].tolist())
     t_cap = time.perf_counter() - t_cap
     t0 = time.perf_counter()
-    rec = reconstruct(scans, T_fc, voxel=0.0015, max_correspondence_distance=0.005)
+    rec = reconstruct(
+        scans, T_fc, voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor, prior=prior
+    )
     t1 = time.perf_counter()
     rec.cloud.meta["viewpoints"] = viewpoints
     clean = BilateralDenoiser(BilateralSettings())(rec.cloud)
@@ -149,12 +159,24 @@ def main() -> None:
         help="views on a lower ring (20 deg elevation) that see under the branch of the Y-pipe (0: off)",
     )
     ap.add_argument("--pieces", nargs="*", default=list(WORKPIECES))
+    ap.add_argument("--variants", nargs="*", default=["exact", "hand-eye"], choices=["exact", "hand-eye"])
+    ap.add_argument(
+        "--anchor", default="mean", choices=["mean", "first"], help="reconstruct()'s anchor (paper: first)"
+    )
+    ap.add_argument(
+        "--prior",
+        nargs=2,
+        type=float,
+        metavar=("SIGMA_T", "SIGMA_R"),
+        help="reconstruct()'s pose prior (m, rad), e.g. 0.002 0.005236; default none (least squares)",
+    )
     args = ap.parse_args()
+    prior = tuple(args.prior) if args.prior else None
     rows = []
     for kind in args.pieces:
-        for variant in ("exact", "hand-eye"):
+        for variant in args.variants:
             res = [
-                run_case(kind, s, args.views, variant == "hand-eye", args.low_views)
+                run_case(kind, s, args.views, variant == "hand-eye", args.low_views, args.anchor, prior)
                 for s in range(args.seeds)
             ]
             for i, r in enumerate(res):
@@ -169,7 +191,7 @@ def main() -> None:
     print()
     print(
         f"Table I (paper 000) in simulation: D415 noise, {args.views}+{args.low_views}+1 views, "
-        f"{args.seeds} seeds "
+        f"{args.seeds} seeds, anchor '{args.anchor}', pose prior {prior or 'none'} "
         "(mean; worst seed in brackets)"
     )
     print()

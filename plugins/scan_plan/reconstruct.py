@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, rotation_angle
@@ -22,6 +23,7 @@ from .nearest import PointTree
 from .registration import IcpResult, linear_icp
 
 Progress = Callable[[int, int, str], None]
+ANCHORS = ("mean", "first")
 
 
 @dataclass
@@ -33,6 +35,8 @@ class ReconstructResult:
     for the first view and for rejected corrections), ``fitness_before[i]`` / ``fitness[i]`` eq. 20
     against the model before / after refinement, ``accepted[i]`` whether the ICP correction was kept,
     ``icp[i]`` the full :class:`IcpResult` (None for the first view or when ICP was off).
+    ``anchor_shift`` is the transform applied to the registered model by ``anchor="mean"`` (identity
+    for ``anchor="first"``); it is included in ``corrections`` and ``T_base_camera``.
     """
 
     cloud: PointCloud
@@ -42,6 +46,7 @@ class ReconstructResult:
     fitness: list[float]
     accepted: list[bool]
     icp: list[IcpResult | None] = field(default_factory=list)
+    anchor_shift: np.ndarray = field(default_factory=lambda: np.eye(4))
 
 
 def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
@@ -107,6 +112,8 @@ def reconstruct(
     max_correction: tuple[float, float] = (0.05, np.deg2rad(10.0)),
     normal_k: int = 20,
     fitness_distance: float | None = None,
+    anchor: str = "mean",
+    prior: tuple[float, float] | None = None,
     progress: Progress | None = None,
 ) -> ReconstructResult:
     """Merge posed views into one model in the base frame (eq. 1) refined by ICP (eqs. 2-8).
@@ -122,9 +129,16 @@ def reconstruct(
     A correction larger than ``max_correction`` (m, rad), or one that lowers the fitness by more than
     0.02, is rejected (kinematic pose kept) with a warning: the kinematics are trusted over a wrong
     local minimum.
+    ``anchor`` = "mean" places the registered model where the views' kinematic poses put it on
+    average (the mean of the accepted corrections is removed: mean translation, chordal mean rotation);
+    "first" keeps the first view's kinematic pose (the paper).
+    ``prior = (sigma_t, sigma_r)`` (m, rad), the expected error of a view's kinematic pose, makes each
+    registration a MAP estimate (see :func:`linear_icp`): poorly constrained directions stay put.
     ``progress(i, n, message)`` is called once per view.
     """
     n = len(scans)
+    if anchor not in ANCHORS:
+        raise DataError(f"unknown anchor '{anchor}'", "use anchor='mean' or 'first'")
     if n == 0:
         raise DataError("no scans to reconstruct", "capture at least one view")
     if voxel is not None and (not np.isfinite(voxel) or voxel <= 0):
@@ -167,6 +181,7 @@ def reconstruct(
                 update=update,
                 normal_k=normal_k,
                 target_tree=tree,
+                prior=prior,
             )
             fb = _fitness(res.initial_distances, src, np.eye(4), tree, d_fit, d_max)
             fa = _fitness(res.distances, src, res.T, tree, d_fit, d_max)
@@ -193,6 +208,24 @@ def reconstruct(
         model = down(np.concatenate([model, Pc])) if register_to_model else model
         if progress is not None:
             progress(i + 1, n, f"view {i + 1}/{n}: fitness {fb:.3f} -> {fa:.3f}")
+    shift = np.eye(4)
+    if anchor == "mean" and register_to_model:
+        shift = mean_anchor_shift([c for c, ok in zip(corrections, accepted, strict=True) if ok])
+        full = [P @ shift[:3, :3].T + shift[:3, 3] for P in full]
+        T_bc = [shift @ T for T in T_bc]
+        corrections = [shift @ C for C in corrections]
     merged = down(np.concatenate(full))
-    cloud = PointCloud(merged, frame="base", meta={"n_views": n, "voxel": voxel})
-    return ReconstructResult(cloud, T_bc, corrections, fit_before, fit_after, accepted, icps)
+    cloud = PointCloud(merged, frame="base", meta={"n_views": n, "voxel": voxel, "anchor": anchor})
+    return ReconstructResult(cloud, T_bc, corrections, fit_before, fit_after, accepted, icps, shift)
+
+
+def mean_anchor_shift(corrections: Sequence[np.ndarray]) -> np.ndarray:
+    """The transform S with ``mean(S @ C_i) = I`` for corrections C_i (mean translation about the base
+    origin, chordal L2 mean rotation): the inverse of the corrections' mean."""
+    if len(corrections) < 2:
+        return np.eye(4)
+    C = np.asarray(corrections, dtype=float)
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_matrix(C[:, :3, :3]).mean().as_matrix()
+    M[:3, 3] = C[:, :3, 3].mean(axis=0)
+    return np.linalg.inv(M)

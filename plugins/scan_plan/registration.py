@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 from weldcell.sdk.arrays import col_max, col_min, row_dot
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, orthonormalize
@@ -134,19 +135,31 @@ def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
     return J
 
 
-def _solve(J: np.ndarray, weights: np.ndarray | None, rcond: float) -> np.ndarray:
+def _solve(
+    J: np.ndarray,
+    weights: np.ndarray | None,
+    rcond: float,
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Eq. 8 on the rows ``J = [A | b]^T``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse.
 
     The pseudo-inverse of the symmetric 6x6 ``A^T A`` is taken through its eigen-decomposition (as
     ``pinv(..., hermitian=True)``: eigenvalues below ``rcond`` x the largest count as zero).
+    ``prior = (lam, c)`` adds ``sum lam_j (x_j + c_j)^2`` (a diagonal Gaussian prior pulling the total
+    correction ``x + c`` towards zero) to the least-squares cost.
     """
     if weights is not None:
         J = J * np.sqrt(weights)[None, :]
     G = _gram(J)
-    w, V = np.linalg.eigh(G[:6, :6])
+    H, g = G[:6, :6], G[:6, 6]
+    if prior is not None:
+        lam, c = prior
+        H = H + np.diag(lam)
+        g = g - lam * c
+    w, V = np.linalg.eigh(H)
     keep = np.abs(w) > rcond * np.abs(w).max()
     Vk = V[:, keep]
-    return Vk @ ((Vk.T @ G[:6, 6]) / w[keep])
+    return Vk @ ((Vk.T @ g) / w[keep])
 
 
 def point_to_plane_step(
@@ -358,6 +371,22 @@ class LazyNormals:
             self.n_estimated += len(miss)
 
 
+def _prior_terms(
+    prior: tuple[float, float], T: np.ndarray, init_inv: np.ndarray, res: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(lam, c) of :func:`_solve` for a prior of standard deviations ``prior = (sigma_t m, sigma_r rad)``
+    on the correction ``T init^-1``: ``c`` its rotation vector and translation, ``lam`` the prior's
+    information scaled by the residuals' variance (robust: 1.4826 MAD) so that it weighs against the
+    point-to-plane sum of squares in the same units."""
+    C = T @ init_inv
+    c = np.concatenate([Rotation.from_matrix(C[:3, :3]).as_rotvec(), C[:3, 3]])
+    mad = 1.4826 * float(np.median(np.abs(res))) if len(res) else 0.0
+    var = max(mad * mad, 1e-12)
+    sigma_t, sigma_r = prior
+    lam = np.array([var / sigma_r**2] * 3 + [var / sigma_t**2] * 3)
+    return lam, c
+
+
 def _normal_table(Tg: np.ndarray, Nt: np.ndarray) -> np.ndarray:
     table = np.empty((len(Tg), 4))
     table[:, :3] = Nt
@@ -379,6 +408,7 @@ def linear_icp(
     update: str = "exact",
     normal_k: int = 20,
     target_tree: PointTree | cKDTree | None = None,
+    prior: tuple[float, float] | None = None,
 ) -> IcpResult:
     """Register ``source`` onto ``target`` by linear point-to-plane ICP (paper 000, eqs. 2-8).
 
@@ -389,6 +419,11 @@ def linear_icp(
     the next both fall below ``tolerance`` (Open3D's criterion), when the update is smaller than
     ``tolerance`` (rad and m), or after ``max_iterations``.
     ``robust`` = "huber" | "tukey" re-weights the residuals (scale ``robust_scale`` m, or adaptive).
+    ``prior = (sigma_t, sigma_r)`` (m, rad): how far the initial guess may be off (e.g. kinematics +
+    hand-eye). The correction then minimises the point-to-plane sum of squares plus a Gaussian prior on
+    the correction (MAP instead of least squares): directions the data hardly constrain (rotation about
+    a cylinder's axis, sliding along a plane) stay near the initial guess instead of drifting; well
+    constrained ones are unaffected. None (the default, the paper) adds nothing.
     ``target_tree`` lets a caller reuse a :class:`~.nearest.PointTree` (or ``cKDTree``) of ``target``.
     """
     S = np.ascontiguousarray(as_points(source, "ICP source", min_points=3))
@@ -406,6 +441,11 @@ def linear_icp(
     if max_iterations < 1:
         raise DataError(f"max_iterations must be >= 1, got {max_iterations}", "pass max_iterations >= 1")
     T = _check_transform(init, "ICP initial transform").copy()
+    init_inv = np.linalg.inv(T)
+    if prior is not None and not (len(prior) == 2 and all(np.isfinite(v) and v > 0 for v in prior)):
+        raise DataError(
+            f"prior must be (sigma_t > 0 m, sigma_r > 0 rad), got {prior}", "e.g. prior=(0.002, 0.01)"
+        )
     if target_tree is not None and target_tree.n != len(Tg):
         raise DataError(
             f"target_tree holds {target_tree.n} points, the target {len(Tg)}",
@@ -459,7 +499,8 @@ def linear_icp(
         if converged or it == max_iterations or n_in < 6:
             break
         w = _robust_weights(res, robust, robust_scale) if robust else None
-        x = _solve(_system_rows(s_in, nc[:, :3], -res), w, 1e-10)
+        pr = _prior_terms(prior, T, init_inv, res) if prior is not None else None
+        x = _solve(_system_rows(s_in, nc[:, :3], -res), w, 1e-10, pr)
         T = _step_matrix(x, update) @ T
         if update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
             T[:3, :3] = orthonormalize(T[:3, :3])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 from pydantic import Field
 from scipy.spatial import cKDTree
@@ -25,6 +27,16 @@ class ReconstructSettings(Settings):
     max_correction: tuple[Length, Angle] = Field(
         (0.05, 0.1745), description="largest ICP correction accepted over kinematics + hand-eye [m, rad]"
     )
+    anchor: Literal["mean", "first"] = Field(
+        "mean",
+        description="registered model placement: 'mean' of the views' kinematic poses or the 'first' view's",
+    )
+    pose_prior: tuple[Length, Angle] | None = Field(
+        None,
+        description="expected error of a view's kinematic pose [m, rad], e.g. ['2 mm', '0.3 deg']: ICP "
+        "becomes a MAP estimate that keeps weakly constrained directions near the kinematics; "
+        "none = least squares",
+    )
 
 
 class Reconstructor:
@@ -45,6 +57,8 @@ class Reconstructor:
             tolerance=self.s.tolerance,
             robust=robust,
             max_correction=tuple(self.s.max_correction),
+            anchor=self.s.anchor,
+            prior=tuple(self.s.pose_prior) if self.s.pose_prior is not None else None,
             progress=progress,
         )
 

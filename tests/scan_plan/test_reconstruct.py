@@ -24,8 +24,9 @@ def look_down(target: np.ndarray, height: float = 0.3) -> np.ndarray:
     return T_base_camera @ invert(T_FLANGE_CAMERA)
 
 
-def make_views(kin_error: bool = True):
-    """Four overlapping views of the corner workpiece; views 1..3 carry a kinematic pose error."""
+def make_views(kin_error: bool = True, first_too: bool = False):
+    """Four overlapping views of the corner workpiece; views 1..3 (all four with ``first_too``) carry a
+    kinematic pose error."""
     rng = np.random.default_rng(7)
     scans, truth = [], []
     for i, (dx, dy) in enumerate(CENTRES):
@@ -37,7 +38,7 @@ def make_views(kin_error: bool = True):
         T_bc = T_bf @ T_FLANGE_CAMERA
         cloud = PointCloud(transform_points(invert(T_bc), P), frame="camera")
         T_rec = T_bf
-        if kin_error and i > 0:
+        if kin_error and (i > 0 or first_too):
             axis = rng.normal(size=3)
             err = T_from_rotvec(np.deg2rad(0.4) * axis / np.linalg.norm(axis), rng.normal(size=3) * 0.0018)
             T_rec = T_bf @ err
@@ -61,7 +62,9 @@ def test_merge_views_eq1_puts_points_in_base_frame():
 def test_reconstruct_corrects_kinematic_errors_against_the_growing_model():
     scans, truth = make_views()
     calls = []
-    res = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, progress=lambda i, n, m: calls.append((i, n)))
+    res = reconstruct(
+        scans, T_FLANGE_CAMERA, voxel=0.003, anchor="first", progress=lambda i, n, m: calls.append((i, n))
+    )
     assert calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
     assert all(res.accepted) and res.icp[0] is None and np.array_equal(res.corrections[0], np.eye(4))
     for i in range(1, 4):
@@ -76,6 +79,32 @@ def test_reconstruct_corrects_kinematic_errors_against_the_growing_model():
     local = transform_points(invert(T_BASE_PART), res.cloud.points)
     floor = local[(local[:, 0] < 0.09) & (local[:, 1] < 0.14)]
     assert np.sqrt(np.mean(floor[:, 2] ** 2)) < 3e-4
+
+
+def test_mean_anchor_places_the_model_by_all_views_not_the_first():
+    scans, truth = make_views(first_too=True)  # every view's kinematic pose is off, differently
+    first = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, anchor="first")
+    mean = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003)
+    assert np.array_equal(first.anchor_shift, np.eye(4)) and not np.allclose(mean.anchor_shift, np.eye(4))
+
+    def err(res):
+        e = np.array([pose_error(T, T_true) for T, T_true in zip(res.T_base_camera, truth, strict=True)])
+        return e.mean(axis=0)
+
+    (t_first, r_first), (t_mean, r_mean) = err(first), err(mean)
+    assert t_mean < 0.7 * t_first and r_mean < 0.7 * r_first, (t_first, t_mean, r_first, r_mean)
+    # the views stay registered to each other: only the whole model moved
+    for a, b in zip(first.T_base_camera, mean.T_base_camera, strict=True):
+        assert np.allclose(mean.anchor_shift @ a, b, atol=1e-9)
+    # the corrections now average to the identity
+    C = np.asarray(mean.corrections)
+    assert np.abs(C[:, :3, 3].mean(axis=0)).max() < 1e-9
+
+
+def test_unknown_anchor_is_refused():
+    scans, _ = make_views(kin_error=False)
+    with pytest.raises(DataError, match="anchor"):
+        reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, anchor="middle")
 
 
 def test_without_registration_views_are_only_merged():

@@ -174,3 +174,40 @@ def test_no_overlap_raises_data_error():
     target, normals = corner_workpiece(spacing=0.01)
     with pytest.raises(DataError, match="no correspondences"):
         linear_icp(target + 5.0, target, normals, max_correspondence_distance=0.01)
+
+
+def test_prior_weighs_the_correction_against_the_data():
+    source, target, normals, T_true = _pair()
+    free = linear_icp(source, target, normals, max_correspondence_distance=0.05)
+    loose = linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=(10.0, 10.0))
+    assert np.allclose(loose.T, free.T, atol=1e-6)  # a vague prior changes nothing
+    # a prior of the size of the true offset still lets a well-constrained part register
+    fair = linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=(0.02, np.deg2rad(5)))
+    dt, dr = pose_error(fair.T, T_true)
+    assert dt < 3e-4 and dr < np.deg2rad(0.03)
+    # a prior far tighter than the data's pull keeps the initial guess
+    tight = linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=(1e-7, 1e-7))
+    dt, dr = pose_error(tight.T, np.eye(4))
+    assert dt < 1e-4 and dr < np.deg2rad(0.01)
+
+
+def test_prior_keeps_weakly_observable_directions_near_the_initial_guess():
+    # a noisy plane seen twice: rotation about its normal and sliding along it are observable only
+    # through the noise of the estimated normals, so a plain solve wanders along them; a prior of the
+    # kinematics' size keeps them near the initial guess and still corrects the 1 mm normal offset
+    rng = np.random.default_rng(5)
+    tgt = np.c_[rng.uniform(-0.1, 0.1, (4000, 2)), rng.normal(0, 3e-4, 4000)]
+    src = np.c_[rng.uniform(-0.1, 0.1, (4000, 2)), 0.001 + rng.normal(0, 3e-4, 4000)]
+    plain = linear_icp(src, tgt, None, max_correspondence_distance=0.01)
+    held = linear_icp(src, tgt, None, max_correspondence_distance=0.01, prior=(0.002, np.deg2rad(0.3)))
+    for r in (plain, held):
+        assert abs(r.T[2, 3] + 0.001) < 5e-5
+    assert np.linalg.norm(plain.T[:2, 3]) > 1.5e-3 and abs(plain.T[1, 0]) > np.deg2rad(2)  # wandered
+    assert np.linalg.norm(held.T[:2, 3]) < 1e-3 and abs(held.T[1, 0]) < np.deg2rad(0.4)
+
+
+@pytest.mark.parametrize("prior", [(0.0, 0.01), (0.002, -1.0), (float("nan"), 0.01), (0.002,)])
+def test_bad_prior_is_refused(prior):
+    source, target, normals, _ = _pair()
+    with pytest.raises(DataError, match="prior"):
+        linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=prior)
