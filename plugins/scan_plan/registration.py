@@ -441,11 +441,17 @@ def linear_icp(
     if max_iterations < 1:
         raise DataError(f"max_iterations must be >= 1, got {max_iterations}", "pass max_iterations >= 1")
     T = _check_transform(init, "ICP initial transform").copy()
-    init_inv = np.linalg.inv(T)
-    if prior is not None and not (len(prior) == 2 and all(np.isfinite(v) and v > 0 for v in prior)):
-        raise DataError(
-            f"prior must be (sigma_t > 0 m, sigma_r > 0 rad), got {prior}", "e.g. prior=(0.002, 0.01)"
-        )
+    init_inv = None
+    if prior is not None:
+        try:
+            sig = np.asarray(prior, dtype=float)
+        except (TypeError, ValueError):
+            sig = np.array([np.nan])
+        if sig.shape != (2,) or not np.all(np.isfinite(sig) & (sig > 0)):
+            raise DataError(
+                f"prior must be (sigma_t > 0 m, sigma_r > 0 rad), got {prior!r}", "e.g. prior=(0.002, 0.01)"
+            )
+        prior, init_inv = (float(sig[0]), float(sig[1])), np.linalg.inv(T)
     if target_tree is not None and target_tree.n != len(Tg):
         raise DataError(
             f"target_tree holds {target_tree.n} points, the target {len(Tg)}",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field
@@ -11,6 +11,9 @@ from weldcell.sdk.cloud import PointCloud, check_cloud
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length
 from weldcell.sdk.weldpath import WeldPath
+
+PositiveLength = Annotated[Length, Field(gt=0)]
+PositiveAngle = Annotated[Angle, Field(gt=0)]
 
 
 class ReconstructSettings(Settings):
@@ -24,14 +27,14 @@ class ReconstructSettings(Settings):
     max_iterations: int = Field(50, ge=1, description="ICP iterations per view")
     tolerance: float = Field(1e-6, gt=0, description="ICP convergence tolerance")
     robust: str | None = Field("huber", description="robust kernel: 'huber', 'tukey' or none")
-    max_correction: tuple[Length, Angle] = Field(
+    max_correction: tuple[PositiveLength, PositiveAngle] = Field(
         (0.05, 0.1745), description="largest ICP correction accepted over kinematics + hand-eye [m, rad]"
     )
     anchor: Literal["mean", "first"] = Field(
         "mean",
         description="registered model placement: 'mean' of the views' kinematic poses or the 'first' view's",
     )
-    pose_prior: tuple[Length, Angle] | None = Field(
+    pose_prior: tuple[PositiveLength, PositiveAngle] | None = Field(
         None,
         description="expected error of a view's kinematic pose [m, rad], e.g. ['2 mm', '0.3 deg']: ICP "
         "becomes a MAP estimate that keeps weakly constrained directions near the kinematics; "

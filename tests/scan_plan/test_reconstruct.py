@@ -148,3 +148,16 @@ def test_bad_voxel_or_hand_eye_raise_data_error():
         reconstruct(scans, T_FLANGE_CAMERA, voxel=-1.0)
     with pytest.raises(DataError):
         merge_views(scans, np.zeros((4, 4)))
+
+
+def test_stage_settings_take_a_pose_prior_in_units_and_refuse_non_positive_ones():
+    from pydantic import ValidationError
+    from weldcell.plugins.scan_plan.stages import ReconstructSettings
+
+    s = ReconstructSettings(pose_prior=["2 mm", "0.3 deg"], anchor="first")
+    assert s.pose_prior == pytest.approx((0.002, np.deg2rad(0.3))) and s.anchor == "first"
+    for bad in (["-2 mm", "0.3 deg"], ["2 mm", "0 deg"]):
+        with pytest.raises(ValidationError, match="greater than 0"):
+            ReconstructSettings(pose_prior=bad)
+    with pytest.raises(ValidationError):
+        ReconstructSettings(anchor="middle")

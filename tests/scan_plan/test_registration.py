@@ -206,7 +206,7 @@ def test_prior_keeps_weakly_observable_directions_near_the_initial_guess():
     assert np.linalg.norm(held.T[:2, 3]) < 1e-3 and abs(held.T[1, 0]) < np.deg2rad(0.4)
 
 
-@pytest.mark.parametrize("prior", [(0.0, 0.01), (0.002, -1.0), (float("nan"), 0.01), (0.002,)])
+@pytest.mark.parametrize("prior", [(0.0, 0.01), (0.002, -1.0), (float("nan"), 0.01), (0.002,), 0.002, "2 mm"])
 def test_bad_prior_is_refused(prior):
     source, target, normals, _ = _pair()
     with pytest.raises(DataError, match="prior"):
