@@ -70,8 +70,7 @@ def plugin_table(pm: PluginManager, out: Console, as_json: bool = False) -> None
             f"{first['distribution']} {first['version']}" if first["distribution"] else "(registered by hand)"
         )
         t = Table(title=f"plugin [bold]{name}[/bold] — {dist}", title_justify="left", show_edge=False)
-        for col in ("category", "name", "kind", "status", "summary"):
-            t.add_column(col, overflow="fold")
+        _add_columns(t, ("category", "name", "kind", "status", "summary"))
         for r in plugins[name]:
             status = "[green]ok[/green]" if r["status"] == "ok" else f"[yellow]{escape(r['status'])}[/yellow]"
             t.add_row(r["category"], r["name"], r["kind"], status, escape(r["summary"]))
@@ -87,20 +86,27 @@ def plugin_table(pm: PluginManager, out: Console, as_json: bool = False) -> None
             out.print(f"  - {escape(str(c))}")
 
 
+def _add_columns(t: Table, cols: tuple[str, ...]) -> None:
+    """Columns of a listing: names are never wrapped (users type them); the last column takes the rest."""
+    for col in cols[:-1]:
+        t.add_column(col, no_wrap=True)
+    t.add_column(cols[-1], overflow="fold", min_width=16)
+
+
 def device_report(pm: PluginManager, out: Console, profile: Path | None) -> int:
     """Print device plugins and their needs; with a profile, probe each device. Returns an exit code."""
     reg = pm.registry
     if profile is None:
         t = Table(show_edge=False)
-        for col in ("device plugin", "kind", "simulated", "needs", "summary"):
-            t.add_column(col, overflow="fold")
+        wide = out.width >= 100  # a narrow terminal shows the summaries in `weldcell plugins`
+        _add_columns(t, ("device plugin", "kind", "sim", "needs", "summary")[: 5 if wide else 4])
         for e in reg.all("device"):
             d = e.descriptor
             missing = d.missing_extras()
             needs = escape(", ".join(f"weldcell[{x}]" for x in sorted(set(d.requires.values()))) or "-")
             if missing:
                 needs = f"[yellow]{needs} (missing: {', '.join(m for m, _ in missing)})[/yellow]"
-            t.add_row(d.name, d.kind, "yes" if d.simulated else "", needs, escape(d.summary))
+            t.add_row(d.name, d.kind, "yes" if d.simulated else "", needs, *[escape(d.summary)][: int(wide)])
         out.print(t)
         return 0
     from weldcell.sdk.jobs import prepare
