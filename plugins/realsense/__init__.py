@@ -25,18 +25,16 @@ def _factory(settings, ctx):
 
 
 def probe(settings) -> str:
-    """List the connected cameras (or check the recording); DeviceError when the asked one is absent."""
+    """List the connected cameras, or the recorded camera and streams of a recording; DeviceError when the
+    asked camera is absent or the recording cannot be read."""
     from pathlib import Path
 
-    if settings.recording:
-        if not Path(settings.recording).is_file():
-            raise DeviceError(
-                f"recording {settings.recording} does not exist", "give the path of a .bag/.db3 file"
-            )
-        return f"recording {settings.recording}"
-    from weldcell.plugins.realsense.adapter import connected_cameras
+    rs = _rs()
+    from weldcell.plugins.realsense.adapter import connected_cameras, describe_recording
 
-    cams = connected_cameras(_rs().context())
+    if settings.recording:
+        return describe_recording(Path(settings.recording))
+    cams = connected_cameras(rs.context())
     if not cams:
         raise DeviceError("no RealSense camera is connected", "plug the camera into a USB 3 port")
     if settings.serial and settings.serial not in cams:

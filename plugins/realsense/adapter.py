@@ -23,6 +23,88 @@ _USB_FIX = (
     "check the USB 3 cable and port (a USB 2 link cannot carry these streams), that no other program "
     "holds the camera, and the resolution/fps pair is supported"
 )
+_AGAIN = "; then recover() and configure() again"
+_BAG_MAGIC = b"#ROSBAG V2.0"  # ROS1 bag: the RealSense Viewer / rs.recorder before librealsense 2.56
+_DB3_MAGIC = b"SQLite format 3\x00"  # ROS2 bag (sqlite3): rs.recorder from librealsense 2.56 on
+_DAMAGED_FIX = (
+    "the file is truncated or damaged (a recording whose recorder was killed has no index): copy it "
+    "again or record it again"
+)
+
+
+def _version() -> tuple[int, ...]:
+    return tuple(int(p) for p in rs.__version__.split(".")[:2])
+
+
+def check_recording(path: Path) -> None:
+    """DeviceError unless ``path`` is a recording this librealsense can open by its name and contents.
+
+    librealsense picks its reader by the suffix alone (``.bag``/``.BAG`` -> ROS1, else ROS2 ``.db3``).
+    """
+    if not path.is_file():
+        raise DeviceError(f"recording {path} does not exist", "give the path of a .bag/.db3 recording")
+    with path.open("rb") as f:
+        head = f.read(16)
+    named_bag = path.suffix in (".bag", ".BAG")
+    if head.startswith(b"#ROSBAG V") and not head.startswith(_BAG_MAGIC):
+        raise DeviceError(
+            f"recording {path} is a ROS1 bag of format {head[9:12].decode(errors='replace')}, not 2.0",
+            "librealsense reads bag format 2.0 only: give a recording of the RealSense Viewer or rs.recorder",
+        )
+    if head.startswith(_BAG_MAGIC) and not named_bag:
+        raise DeviceError(
+            f"recording {path} is a ROS1 .bag file but its name does not end in .bag",
+            "rename it to end in .bag (librealsense chooses its reader by the file name)",
+        )
+    if head.startswith(_DB3_MAGIC) and named_bag:
+        raise DeviceError(
+            f"recording {path} is a ROS2 .db3 recording but its name ends in .bag",
+            "rename it to end in .db3 (librealsense chooses its reader by the file name)",
+        )
+    if head.startswith(_DB3_MAGIC) and _version() < (2, 56):
+        raise DeviceError(
+            f"recording {path} is a .db3 (ROS2) recording; librealsense {rs.__version__} reads only .bag",
+            "pip install 'pyrealsense2>=2.56' (reads .db3 and .bag), or record with this version (.bag)",
+        )
+    if not head.startswith((_BAG_MAGIC, _DB3_MAGIC)):
+        what = "is empty" if not head else "is neither a ROS1 .bag nor a ROS2 .db3 file"
+        raise DeviceError(
+            f"recording {path} {what}", f"give a RealSense recording; if it was one, {_DAMAGED_FIX}"
+        )
+
+
+def unreadable(path: Path, e: RuntimeError) -> DeviceError:
+    """librealsense's refusal to open a recording, reworded (its reason kept)."""
+    reason = str(e).split("Reason: ", 1)[-1]
+    return DeviceError(f"recording {path} cannot be read: {reason}", _DAMAGED_FIX)
+
+
+def _stream_text(p) -> str:
+    fmt = str(p.format()).split(".")[-1]
+    size = ""
+    if p.is_video_stream_profile():
+        v = p.as_video_stream_profile()
+        size = f" {v.width()}x{v.height()}"
+    return f"{p.stream_name().lower()}{size} {fmt} @ {p.fps()} Hz"
+
+
+def describe_recording(path: Path) -> str:
+    """The recorded camera, duration and streams of a recording; DeviceError when it cannot be read."""
+    check_recording(path)
+    ctx = rs.context()
+    try:
+        dev = ctx.load_device(str(path))
+    except RuntimeError as e:
+        raise unreadable(path, e) from None
+    try:
+        info = [
+            dev.get_info(i) for i in (rs.camera_info.name, rs.camera_info.serial_number) if dev.supports(i)
+        ]
+        streams = [_stream_text(p) for s in dev.query_sensors() for p in s.get_stream_profiles()]
+        seconds = dev.as_playback().get_duration().total_seconds()
+    finally:
+        ctx.unload_device(str(path))
+    return f"recording {path}: {' #'.join(info)}, {seconds:.3g} s; {', '.join(streams)}"
 
 
 def connected_cameras(ctx) -> dict[str, str]:
@@ -79,6 +161,7 @@ class RealSenseCamera(DepthCamera):
         self._align = None
         self._filters: list = []
         self._dev = None
+        self._framesets = 0
 
     # -- lifecycle -------------------------------------------------------------------------------
     def on_configure(self) -> None:
@@ -98,12 +181,8 @@ class RealSenseCamera(DepthCamera):
         ctx = self._ctx or rs.context()
         cfg = rs.config()
         if s.recording:
-            path = Path(s.recording)
-            if not path.is_file():
-                raise DeviceError(
-                    f"recording {path} does not exist", "give the path of a .bag/.db3 recording"
-                )
-            cfg.enable_device_from_file(str(path), repeat_playback=s.playback_repeat)
+            check_recording(Path(s.recording))
+            cfg.enable_device_from_file(s.recording, repeat_playback=s.playback_repeat)
         else:
             cams = connected_cameras(ctx)
             if s.serial and s.serial not in cams:
@@ -128,9 +207,14 @@ class RealSenseCamera(DepthCamera):
         try:
             profile = cfg.resolve(rs.pipeline_wrapper(pipe))
         except RuntimeError as e:
+            if s.recording:
+                raise unreadable(Path(s.recording), e) from None
             raise DeviceError(f"the camera cannot stream the requested configuration: {e}", _USB_FIX) from e
         self._pipe, self._cfg = pipe, cfg
         self._dev = profile.get_device()
+        if s.recording:
+            self._check_recorded_streams(profile)
+            self._dev.as_playback().set_real_time(s.playback_realtime)  # before start: no frame dropped
         depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
         self._depth_profile = depth
         self._intr = to_intrinsics(depth.get_intrinsics())
@@ -138,6 +222,21 @@ class RealSenseCamera(DepthCamera):
         self._scale = float(sensor.get_depth_scale())
         if not s.recording:
             self._apply_options(sensor)
+
+    def _check_recorded_streams(self, profile) -> None:
+        s = self.settings
+        streams = {p.stream_type() for p in profile.get_streams()}
+        held = ", ".join(_stream_text(p) for p in profile.get_streams()) or "no streams"
+        if rs.stream.depth not in streams:
+            raise DeviceError(
+                f"recording {s.recording} has no depth stream (it holds {held})",
+                "record the camera with its depth stream enabled",
+            )
+        if s.color and rs.stream.color not in streams:
+            raise DeviceError(
+                f"recording {s.recording} has no colour stream (it holds {held})",
+                "set color = false to play its depth alone",
+            )
 
     def _configure_injected(self) -> None:
         s = self.settings
@@ -218,15 +317,13 @@ class RealSenseCamera(DepthCamera):
 
     def on_activate(self) -> None:
         s = self.settings
+        self._framesets = 0
         if self._pipe is not None:
             try:
                 self._profile = self._pipe.start(self._cfg)
             except RuntimeError as e:
                 raise DeviceError(f"the camera did not start: {e}", _USB_FIX) from e
-            if s.recording:
-                pb = self._profile.get_device().as_playback()
-                pb.set_real_time(s.playback_realtime)
-            else:
+            if not s.recording:
                 for _ in range(s.warmup_frames):
                     self._wait(s.start_timeout)
         else:
@@ -269,25 +366,49 @@ class RealSenseCamera(DepthCamera):
         ok, fs = src.try_wait_for_frames(int(max(1.0, timeout * 1000)))
         if ok:
             return fs
-        if self.settings.recording and self._profile is not None:
-            status = self._profile.get_device().as_playback().current_status()
-            if status == rs.playback_status.stopped:
-                raise self.fault(f"the recording {self.settings.recording} has ended")
-        raise self.fault(f"no frames from the camera within {timeout:.3g} s")
+        if not (self.settings.recording and self._profile is not None):
+            raise self._fault(f"no frames from the camera within {timeout:.3g} s", _USB_FIX + _AGAIN)
+        pb = self._profile.get_device().as_playback()
+        rec, n = self.settings.recording, self._framesets
+        length = f"{pb.get_duration().total_seconds():.3g} s recorded"
+        if pb.current_status() == rs.playback_status.stopped:
+            raise self._fault(
+                f"the recording {rec} has ended after {n} framesets ({length})",
+                "set playback_repeat = true to loop it; recover() and configure() to play it again",
+            )
+        raise self._fault(
+            f"the recording {rec} delivered no frame within {timeout:.3g} s while playing, after {n} "
+            f"framesets ({length}): a gap in the recording, or the file is damaged there",
+            f"allow a longer timeout for a gap; otherwise {_DAMAGED_FIX}{_AGAIN}",
+        )
+
+    def _fault(self, message: str, fix: str) -> DeviceError:
+        """Enter ERROR with ``message``; the error to raise carries ``fix``."""
+        return DeviceError(self.fault(message).message, fix)
+
+    def _in_step(self, depth, color) -> bool:
+        """Depth and colour within half a frame period, librealsense's own matching rule (a repeating
+        recording can pair its last depth with its first colour frame); different clock domains pass."""
+        if depth.get_frame_timestamp_domain() != color.get_frame_timestamp_domain():
+            return True
+        period_ms = 1000.0 / max(1, min(depth.profile.fps(), color.profile.fps()))
+        return abs(depth.get_timestamp() - color.get_timestamp()) < period_ms / 2
 
     def _next_frameset(self, timeout: float):
-        """The next frameset holding depth (and colour when streamed); partial sets are skipped."""
+        """The next frameset holding depth (and, when streamed, colour of the same instant); others are
+        skipped."""
         deadline = time.monotonic() + timeout
         while True:
-            try:
-                fs = self._wait(max(0.001, deadline - time.monotonic()))
-            except DeviceError as e:
-                raise DeviceError(e.message, _USB_FIX + "; then recover() and configure again") from None
-            if fs.get_depth_frame() and (not self.settings.color or fs.get_color_frame()):
+            fs = self._wait(max(0.001, deadline - time.monotonic()))
+            depth, color = fs.get_depth_frame(), fs.get_color_frame()
+            if depth and (not self.settings.color or (color and self._in_step(depth, color))):
+                self._framesets += 1
                 return fs
             if time.monotonic() >= deadline:
                 what = "depth and colour" if self.settings.color else "depth"
-                raise self.fault(f"no frameset with {what} within {timeout:.3g} s (streams out of sync)")
+                raise self._fault(
+                    f"no frameset with {what} of the same instant within {timeout:.3g} s", _USB_FIX + _AGAIN
+                )
 
     def _capture(self, timeout: float) -> DepthFrame:
         fs = self._next_frameset(timeout)

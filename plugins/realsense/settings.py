@@ -19,14 +19,14 @@ class RealSenseSettings(Settings):
     )
     recording: str | None = Field(
         None,
-        description="play back this recording (.bag, or .db3 from librealsense "
-        ">= 2.56) instead of a live camera",
+        description="play back this recording instead of a live camera: .bag (RealSense Viewer / "
+        "librealsense < 2.56) or .db3 (librealsense >= 2.56); its streams and resolutions are used",
     )
     playback_repeat: bool = Field(False, description="loop the recording")
     playback_realtime: bool = Field(
         True,
-        description="play the recording at its recorded pace (False: as fast "
-        "as frames are read, none dropped)",
+        description="play the recording at its recorded pace (False: as fast as frames are read; "
+        "librealsense's pipeline may still drop a frameset under CPU load)",
     )
     depth_width: int = Field(1280, gt=0, description="depth stream width [px] (D415: 1280x720 native)")
     depth_height: int = Field(720, gt=0, description="depth stream height [px]")

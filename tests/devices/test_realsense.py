@@ -1,6 +1,7 @@
-"""The RealSense adapter (camera.realsense) on pyrealsense2's software device and on a real librealsense
-recording made from it: depth in metres via the device's scale, intrinsics from the stream profile,
-alignment, filters, options, timeouts and recovery."""
+"""The RealSense adapter (camera.realsense) on pyrealsense2's software device, on a real librealsense
+recording made from it (.db3) and on ROS1 .bag recordings in the RealSense Viewer's layout: depth in
+metres via the device's scale, intrinsics from the stream profile, alignment, filters, options, end of
+recording, repeat, damaged files, timeouts and recovery."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ rs = pytest.importorskip(
 )
 
 from peers_realsense import SERIAL, SoftwareD415  # noqa: E402
+from peers_realsense_bag import SERIAL as BAG_SERIAL  # noqa: E402
+from peers_realsense_bag import write_d415_bag  # noqa: E402
 from weldcell.hal.lifecycle import State  # noqa: E402
 from weldcell.plugins import realsense as rs_plugin  # noqa: E402
 from weldcell.plugins.realsense.adapter import RealSenseCamera  # noqa: E402
@@ -148,7 +151,7 @@ def test_recording_playback_through_the_pipeline(d415, tmp_path):
     path = tmp_path / "d415.db3"
     d415.record(str(path), frames=8)
     s = RealSenseSettings(recording=str(path), playback_realtime=False, color=False)
-    assert "d415.db3" in rs_plugin.probe(s)
+    assert "d415.db3" in rs_plugin.probe(s) and "depth 64x48 z16 @ 30 Hz" in rs_plugin.probe(s)
     cam = RealSenseCamera(s)
     cam.configure()
     assert cam.intrinsics().width == 64  # from the recorded stream profile
@@ -158,8 +161,181 @@ def test_recording_playback_through_the_pipeline(d415, tmp_path):
     with pytest.raises(DeviceError) as e:
         for _ in range(20):
             cam.capture(timeout=0.3)
-    assert "ended" in e.value.message or "no frames" in e.value.message
+    assert "ended" in e.value.message or "delivered no frame" in e.value.message
     cam.close()
+
+
+# -- ROS1 .bag recordings (RealSense Viewer / rs.recorder before librealsense 2.56) -------------------------
+
+
+def play(path, **kw) -> RealSenseCamera:
+    return RealSenseCamera(RealSenseSettings(recording=str(path), playback_realtime=False, **kw))
+
+
+def assert_frame_of_scene(f, scene, color: bool = True) -> int:
+    """The frame's depth (and colour) are those the recording holds under its frame number."""
+    n = f.meta["frame_number"]
+    np.testing.assert_allclose(f.depth, scene.depth_m(n), atol=0.5e-4 + 1e-6)
+    if color:
+        np.testing.assert_array_equal(f.color, scene.color_rgb(n))
+    return n
+
+
+def play_out(cam, scene, limit: int = 30) -> tuple[list[int], DeviceError]:
+    """Capture until the recording's error; the frame numbers read (librealsense's pipeline may drop a
+    frameset under CPU load, so numbers only have to rise) and the error."""
+    numbers = []
+    with pytest.raises(DeviceError) as e:
+        for _ in range(limit):
+            numbers.append(assert_frame_of_scene(cam.capture(timeout=0.5), scene))
+    assert numbers == sorted(set(numbers))
+    return numbers, e.value
+
+
+@pytest.mark.parametrize(
+    "layout",
+    [{}, {"units_in_frames": False, "file_version": 3}],
+    ids=["units-in-frames", "older-units-in-option"],
+)
+def test_bag_recording_plays_depth_colour_and_intrinsics(tmp_path, layout):
+    path = tmp_path / "d415.bag"
+    scene = write_d415_bag(path, frames=10, chunk_threshold=40_000, **layout)
+    assert path.read_bytes().count(b"compression=none") > 3  # several chunks, as any real recording
+    cam = play(path)
+    cam.configure()
+    k = cam.intrinsics()
+    assert (k.width, k.height, k.fx, k.fy, k.cx, k.cy) == (64, 48, 50.0, 50.0, 31.5, 23.5)
+    cam.activate()
+    f = cam.capture()
+    assert_frame_of_scene(f, scene)  # depth in metres to half a depth unit, colour bytes, frame pairing
+    assert f.meta["depth_scale"] == pytest.approx(1e-4)  # the recorded Depth Units, not an assumed 1 mm
+    assert f.depth.dtype == np.float32 and np.all(f.depth[5:10, 5:10] == 0.0)
+    numbers, _ = play_out(cam, scene)
+    assert len(numbers) >= 7 and numbers[-1] == 10  # read to the end, in order
+    cam.close()
+
+
+def test_bag_alignment_uses_the_recorded_colour_intrinsics_and_extrinsics(tmp_path):
+    scene = write_d415_bag(tmp_path / "d415.bag", frames=3)
+    with play(tmp_path / "d415.bag", align_to_color=True) as cam:
+        f = cam.capture()
+    assert f.depth.shape == (60, 80) and f.intrinsics.fx == 60.0 and f.meta["aligned_to_color"]
+    v, u = np.mgrid[0:60, 0:80]
+    inner = (f.depth > 0) & (u > 10) & (u < 70) & (v > 15) & (v < 50)
+    assert inner.sum() > 1000
+    # the colour camera sits 50 mm along x: ignoring the recorded extrinsics would be off by >= 5 mm
+    truth = scene.depth_in_color_m(f.meta["frame_number"])
+    np.testing.assert_allclose(f.depth[inner], truth[inner], atol=2e-3)
+
+
+def test_bag_end_of_recording_then_replay_and_repeat(tmp_path):
+    path = tmp_path / "d415.bag"
+    scene = write_d415_bag(path, frames=6)
+    cam = play(path)
+    cam.configure()
+    cam.activate()
+    numbers, e = play_out(cam, scene)
+    assert numbers[-1] == 6 and f"has ended after {len(numbers)} framesets" in e.message
+    assert "playback_repeat" in e.fix and cam.lifecycle is State.ERROR
+    cam.recover()
+    cam.configure()
+    cam.activate()
+    assert cam.capture().meta["frame_number"] <= 2  # played again from the start
+    cam.close()
+    with play(path, playback_repeat=True) as cam:
+        numbers = [assert_frame_of_scene(cam.capture(timeout=1.0), scene) for _ in range(14)]
+    # looped at least once, and the last depth was never paired with the first colour frame
+    assert any(b < a for a, b in zip(numbers, numbers[1:], strict=False)) and max(numbers) == 6
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        (lambda b: b[: len(b) // 2], "cannot be read"),  # copy cut short: the index is lost
+        (lambda b: b[:-10], "cannot be read"),
+        (lambda b: b"", "is empty"),
+        (lambda b: b"<html>not found</html>\n" * 40, "neither a ROS1 .bag nor a ROS2 .db3"),
+    ],
+    ids=["half", "last-bytes-missing", "empty", "not-a-bag"],
+)
+def test_a_truncated_or_corrupt_bag_is_one_clear_error(tmp_path, damage, words):
+    write_d415_bag(tmp_path / "good.bag", frames=4)
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(damage((tmp_path / "good.bag").read_bytes()))
+    cam = play(bad)
+    with pytest.raises(DeviceError) as e:
+        cam.configure()
+    assert words in e.value.message and "bad.bag" in e.value.message and "copy it again" in e.value.fix
+    assert cam.lifecycle is State.ERROR
+    with pytest.raises(DeviceError) as e:
+        rs_plugin.probe(RealSenseSettings(recording=str(bad)))
+    assert words in e.value.message
+
+
+@pytest.mark.parametrize(
+    ("field", "words"),
+    [(-4, "has ended after {n} framesets"), (11, "delivered no frame within 0.5 s while playing, after {n}")],
+    ids=["encoding-length", "data-length"],
+)
+def test_a_bag_damaged_inside_a_frame_stops_there_with_a_clear_error(tmp_path, field, words):
+    path = tmp_path / "d415.bag"
+    scene = write_d415_bag(path, frames=6)
+    b = bytearray(path.read_bytes())
+    at = [i for i in range(len(b)) if b[i : i + 6] == b"mono16"][3]  # [0] is the stream info; frame 3
+    b[at + field : at + field + 4] = b"\xff\xff\xff\x7f"  # a length field of frame 3's depth image
+    path.write_bytes(bytes(b))
+    cam = play(path)
+    cam.configure()
+    cam.activate()
+    numbers, e = play_out(cam, scene)  # within the timeout: no hang
+    assert numbers in ([1, 2], [2]) and words.format(n=len(numbers)) in e.message
+    assert cam.lifecycle is State.ERROR
+    cam.recover()
+
+
+def test_a_bag_without_colour_needs_color_false(tmp_path):
+    path = tmp_path / "depth_only.bag"
+    scene = write_d415_bag(path, frames=3, color=False)
+    cam = play(path)
+    with pytest.raises(DeviceError) as e:
+        cam.configure()
+    assert "no colour stream (it holds depth 64x48 z16 @ 30 Hz)" in e.value.message
+    assert "color = false" in e.value.fix
+    with play(path, color=False) as cam:
+        f = cam.capture()
+    assert f.color is None
+    assert_frame_of_scene(f, scene, color=False)
+
+
+def test_probe_reports_the_recorded_camera_and_streams(tmp_path):
+    write_d415_bag(tmp_path / "d415.bag", frames=10)
+    text = rs_plugin.probe(RealSenseSettings(recording=str(tmp_path / "d415.bag")))
+    assert f"Intel RealSense D415 #{BAG_SERIAL}, 0.3 s" in text
+    assert "depth 64x48 z16 @ 30 Hz" in text and "color 80x60 rgb8 @ 30 Hz" in text
+
+
+def test_misnamed_or_unreadable_format_recordings_say_what_to_do(tmp_path, monkeypatch):
+    write_d415_bag(tmp_path / "d415.bag", frames=2)
+    renamed = tmp_path / "d415.rosbag"
+    renamed.write_bytes((tmp_path / "d415.bag").read_bytes())
+    sqlite = tmp_path / "d415_db3.bag"
+    sqlite.write_bytes(b"SQLite format 3\x00" + bytes(100))
+    old_bag = tmp_path / "old.bag"
+    old_bag.write_bytes(b"#ROSBAG V1.2\n" + bytes(100))
+    for path, words, fix in (
+        (renamed, "ROS1 .bag file but its name does not end in .bag", "rename it to end in .bag"),
+        (sqlite, "ROS2 .db3 recording but its name ends in .bag", "rename it to end in .db3"),
+        (old_bag, "ROS1 bag of format 1.2, not 2.0", "RealSense Viewer"),
+    ):
+        with pytest.raises(DeviceError) as e:
+            play(path).configure()
+        assert words in e.value.message and fix in e.value.fix
+    db3 = tmp_path / "d415.db3"
+    db3.write_bytes(b"SQLite format 3\x00" + bytes(100))
+    monkeypatch.setattr(rs, "__version__", "2.54.2")
+    with pytest.raises(DeviceError) as e:
+        play(db3).configure()
+    assert "librealsense 2.54.2 reads only .bag" in e.value.message and "pyrealsense2>=2.56" in e.value.fix
 
 
 def test_missing_recording_and_absent_serial_are_clear_errors(tmp_path):
