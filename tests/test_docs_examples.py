@@ -1,4 +1,5 @@
-"""The docs' runnable parts: the example plugin's own tests pass and the profile reference is current."""
+"""The docs' runnable parts: the example plugin's own tests pass; the profile reference and the CLI help
+shown in the docs are current."""
 
 from __future__ import annotations
 
@@ -44,3 +45,16 @@ def test_profile_reference_is_up_to_date():
         timeout=300,
     )
     assert proc.returncode == 0, "stale; run `python docs/gen_profile_reference.py`\n" + proc.stderr[-3000:]
+
+
+def test_cli_help_in_the_docs_is_current():
+    """Every `weldcell ... --help` shown in docs/cli.md is what the command prints."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "docs" / "gen_cli_help.py"), "--check"],
+        cwd=ROOT,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, "stale; run `python docs/gen_cli_help.py`\n" + proc.stderr[-3000:]

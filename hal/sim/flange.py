@@ -6,6 +6,8 @@ geometry: the face annulus with its holes, the rim and hole walls, and a plate `
 Behind it sits the robot's last link, a cylinder wider than the plate whose end face closes the holes
 (so the holes read as recesses, as on a real wrist). A segmentation must separate the flange face from
 the link, as in a real scan (paper 003 §2.1.4).
+The same plate on a pedestal is a fixed scene part (:func:`plate_workpiece`, kind ``iso9409-plate`` in
+``[[sim.workpieces]]``): the feature a camera on the flange calibrates against (eye-in-hand).
 
 Frames: the mesh lives in the flange frame (ISO 9409-1): origin at the face centre, z out of the face
 (away from the robot), x toward the pin hole. Units: metres.
@@ -22,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from weldcell.hal.iso9409 import ISO9409_1, check_dimensions
+from weldcell.hal.sim.workpieces import Workpiece
 from weldcell.sdk.errors import DataError
 
 
@@ -180,3 +183,27 @@ def posed_mesh(V: np.ndarray, F: np.ndarray, T_world_frame: np.ndarray):
     )
     mesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(F, dtype=np.int32))
     return mesh
+
+
+def plate_workpiece(
+    d1: float = 50.0, thickness: float = 0.012, pedestal_diameter: float = 0.1, pedestal_height: float = 0.1
+) -> Workpiece:
+    """A fixed ISO 9409-1 flange plate (pitch circle ``d1`` mm, with its holes) on a cylindrical
+    pedestal ``pedestal_height`` high and wider than the plate, as a scene part without seams (the
+    feature an eye-in-hand calibration looks at, paper 003 Fig. 14a). Its frame is the ISO flange
+    frame (origin at the face centre, z out of the face, x toward the pin hole); place it with the
+    [[sim.workpieces]] ``xyz``/``rpy`` of the face centre."""
+    import open3d as o3d
+
+    g = FlangeGeometry(float(d1), thickness, pedestal_diameter, pedestal_height)
+    V, F = flange_mesh(g)
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F.astype(np.int32))
+    )
+    params = {
+        "d1": d1,
+        "thickness": thickness,
+        "pedestal_diameter": pedestal_diameter,
+        "pedestal_height": pedestal_height,
+    }
+    return Workpiece("iso9409-plate", "iso9409-plate", mesh, [], params)

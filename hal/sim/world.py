@@ -3,19 +3,50 @@
 Simulated devices of one run share one :class:`SimWorld` (through the run's ``shared`` dict).
 The world frame is the cell's fixed frame; each robot registers its base (its mount) and a live
 flange frame ``<role>.flange``; a camera mounted on ``<role>.flange`` follows the robot.
+Fixtures (:data:`FIXTURES`, e.g. a fixed ISO 9409-1 flange plate a flange-mounted camera calibrates
+against) are placed like workpieces but carry no seams.
 Meshes can be *attached* to a live frame (a robot's flange and last link): depth cameras re-pose them
 before every render, so they move with the robot.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from weldcell.hal.sim.workpieces import Workpiece, make_workpiece
+from weldcell.hal.sim.flange import plate_workpiece
+from weldcell.hal.sim.workpieces import Workpiece, make_workpiece, workpiece_parameters
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rpy
+
+#: scene parts that are not weld workpieces (no seams), placed like workpieces in [[sim.workpieces]]
+FIXTURES: dict[str, Callable[..., Workpiece]] = {"iso9409-plate": plate_workpiece}
+
+
+def scene_part(kind: str, **params: float) -> Workpiece:
+    """A workpiece (``make_workpiece``) or a fixture of :data:`FIXTURES`, built by kind."""
+    if kind not in FIXTURES:
+        scene_parameters(kind)  # an unknown kind: one error listing workpieces and fixtures
+        return make_workpiece(kind, **params)
+    unknown = sorted(set(params) - set(scene_parameters(kind)))
+    if unknown:
+        raise DataError(
+            f"'{kind}' has no parameter {', '.join(repr(u) for u in unknown)}",
+            f"use only {', '.join(scene_parameters(kind))} (d1 in mm, the rest in metres)",
+        )
+    return FIXTURES[kind](**params)
+
+
+def scene_parameters(kind: str) -> dict[str, object]:
+    """The keyword parameters of a workpiece or fixture kind and their defaults."""
+    if kind in FIXTURES:
+        return {n: p.default for n, p in inspect.signature(FIXTURES[kind]).parameters.items()}
+    try:
+        return workpiece_parameters(kind)
+    except DataError as e:
+        raise DataError(e.message, f"{e.fix}, or a fixture: {', '.join(FIXTURES)}") from None
 
 
 class SimClock:
@@ -57,7 +88,7 @@ class SimWorld:
         parts = []
         for i, w in enumerate(section.workpieces):
             try:
-                wp = make_workpiece(w.kind, **w.params)
+                wp = scene_part(w.kind, **w.params)
             except DataError as e:
                 raise DataError(f"[sim] workpieces[{i}]: {e.message}", e.fix) from None
             parts.append(wp.placed(T_from_rpy(w.rpy, w.xyz)))

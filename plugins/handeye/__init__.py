@@ -41,12 +41,13 @@ def weldcell_register_jobs(register) -> None:
         JobSpec(
             name="calibrate",
             kind="job",
-            summary="hand-eye calibration of a fixed depth camera from scans of the robot's flange (online)",
+            summary="hand-eye calibration of a depth camera fixed in the cell (scans of the robot's flange) "
+            "or on the flange (scans of a fixed ISO 9409-1 plate), online",
             settings=job.CalibrateSettings,
             run=job.run,
             devices=(
-                DeviceRole("robot", "robot", "the arm whose flange is scanned"),
-                DeviceRole("camera", "depth_camera", "the depth camera fixed in the cell"),
+                DeviceRole("robot", "robot", "the arm whose flange is scanned (or that carries the camera)"),
+                DeviceRole("camera", "depth_camera", "the depth camera, on 'world' or on 'robot.flange'"),
             ),
             stages=(
                 StageRole(

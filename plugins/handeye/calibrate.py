@@ -44,6 +44,9 @@ DEFAULTS: dict = {
     "feature": "tcp",  # fixed camera: the feature in the flange frame ("tcp" = [0,0,0], xyz, or "estimate")
     "feature_base": "origin",  # moving camera: the fixed feature in the base ("origin", xyz, or "estimate")
     "allow_coplanar": False,
+    # feature estimated: weight of the centre's component along its face normal (sample meta "normal",
+    # camera frame, or the circle fit's) against the in-plane ones; 1 = plain point fit (featurefit)
+    "normal_weight": 1.0,
     "min_samples": 4,
     "inlier_threshold": None,  # m; None = robust (n_sigma x MAD-based sigma)
     "n_sigma": 3.0,
@@ -108,6 +111,7 @@ def measure_flange_centre(cloud, s: dict) -> tuple[np.ndarray, dict]:
     seg = segment_flange(pts, SegmentSettings(**s["segment"]))
     circ = ransac_circle(seg.face, rng=s["seed"], **s["circle"])
     return circ.center, {
+        "normal": circ.normal.tolist(),
         "segment": seg.report,
         "radius": circ.radius,
         "circle_rms": circ.rms,
@@ -138,6 +142,18 @@ def _p_cam(samples: list[HandEyeSample], s: dict) -> tuple[np.ndarray, list[int]
     if not pts:
         raise DataError("the flange was not found in any scan", "check the segmentation and circle settings")
     return np.array(pts), keep, warns, reports
+
+
+def _normals(samples: list[HandEyeSample], keep: list[int], reports: list[dict]) -> np.ndarray:
+    """Face normals (camera frame) of the kept samples: their meta "normal" or the circle fit's."""
+    out = [samples[i].meta.get("normal", rep.get("normal")) for i, rep in zip(keep, reports, strict=True)]
+    missing = [keep[j] for j, v in enumerate(out) if v is None]
+    if missing:
+        raise DataError(
+            f"normal_weight needs each sample's face normal; samples {missing[:10]} have none",
+            "give meta['normal'] (camera frame) or a cloud for every sample, or set normal_weight = 1",
+        )
+    return np.asarray(out, float)
 
 
 def _board_poses(samples: list[HandEyeSample], s: dict) -> np.ndarray:
@@ -200,6 +216,8 @@ def _solve(
             diagnostics.check_point_diversity(
                 c, max(5, s["min_samples"]), allow_coplanar=s["allow_coplanar"], what="camera points"
             )
+            N = _normals(samples, keep, reports) if s["normal_weight"] != 1.0 else None
+            w = s["normal_weight"]
             ff = fit_with_unknown_point(
                 c,
                 B,
@@ -207,12 +225,15 @@ def _solve(
                 n_sigma=s["n_sigma"],
                 min_threshold=s["min_threshold"],
                 rng=s["seed"],
+                normals=N,
+                normal_weight=w,
             )
             X, res, inl = ff.T, ff.residuals, ff.inliers
             extra = {"feature_flange" if kind == "fixed" else "feature_base": ff.q}
 
             def refit(idx):
-                return fit_with_unknown_point(c[idx], B[idx], robust=False).T
+                n_idx = None if N is None else N[idx]
+                return fit_with_unknown_point(c[idx], B[idx], robust=False, normals=n_idx, normal_weight=w).T
         else:
             if kind == "fixed":
                 dst = p_base[keep] if P is None else P[:, :3, :3] @ q + P[:, :3, 3]
@@ -255,6 +276,7 @@ def _solve(
                 return scaled_svd_fit(c[idx], dst[idx]).T
 
         n_in = int(np.sum(inl))
+        warnings += _implausible_residuals(res[inl], q, kind)
         if s["bootstrap"] and n_in >= 5 and method != "flange-iterative":
             idx_in = np.flatnonzero(inl)
             metrics["bootstrap"] = diagnostics.bootstrap(
@@ -358,6 +380,23 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         "refit_inliers": pr.refit_inliers,
     }
     return X, res, inl, m
+
+
+PLAUSIBLE_RMS = 0.005  # m: a 3-D scanner's flange centres agree with a right model far better than this
+
+
+def _implausible_residuals(res: np.ndarray, q, kind: str) -> list[str]:
+    """A warning when the fit's inlier residuals are far above any 3-D scanner's noise: the model
+    (configuration, feature position, units) does not describe the data."""
+    rms = float(np.sqrt(np.mean(res**2))) if len(res) else 0.0
+    if rms <= PLAUSIBLE_RMS:
+        return []
+    where = "feature (flange frame)" if kind == "fixed" else "feature_base (the fixed feature in the base)"
+    told = "estimated" if isinstance(q, str) else f"{np.round(np.asarray(q) * 1e3, 1).tolist()} mm"
+    return [
+        f"inlier residuals {rms * 1e3:.1f} mm rms, far above a scanner's noise: check the configuration, "
+        f"the units and the {where}, now {told}"
+    ]
 
 
 def _poses(samples, attr) -> np.ndarray | None:

@@ -91,6 +91,11 @@ def _stage_settings(settings_file: Path | None, overrides: dict):
             raise UsageError(f"settings file not found: {settings_file}", "check the path")
         text = settings_file.read_text()
         values = tomllib.loads(text) if settings_file.suffix == ".toml" else json.loads(text)
+        if "extends" in values or "schema" in values:  # a profile: its extends chain counts
+            from weldcell.sdk.profile import load_profile
+
+            stage = load_profile(settings_file).profile.stages.get("handeye")
+            values = {"stages": {"handeye": {"settings": dict(stage.settings) if stage else {}}}}
         values = values.get("stages", {}).get("handeye", {}).get("settings", values)
         values = {k: v for k, v in values.items() if k in FlangeSettings.model_fields}
     values.update({k: v for k, v in overrides.items() if v is not None})
@@ -144,15 +149,18 @@ def measure_scans(ss, stage, need_pose: bool) -> list[str]:
     return notes
 
 
-def _feature(value: str | None):
-    if value is None or value in ("tcp", "estimate"):
+def _feature(value: str | None, option: str = "--feature", named: str = "tcp"):
+    """A feature option: ``named`` ("tcp" or "origin"), "estimate", or x,y,z in mm (returned in m)."""
+    if value is None or value in (named, "estimate"):
         return value
     try:
         xyz = [float(v) * 1e-3 for v in value.split(",")]
     except ValueError:
         xyz = []
     if len(xyz) != 3:
-        raise UsageError(f"--feature '{value}' is not tcp, estimate or x,y,z", "e.g. --feature 0,0,12.5 (mm)")
+        raise UsageError(
+            f"{option} '{value}' is not {named}, estimate or x,y,z", f"e.g. {option} 0,0,12.5 (mm)"
+        )
     return xyz
 
 
@@ -224,6 +232,11 @@ def calibrate_group() -> None:
     "--verifier icp; default the first with a scan). It is left out of the fit.",
 )
 @click.option("--feature", help="The circle centre in the flange frame: tcp, estimate, or x,y,z in mm.")
+@click.option(
+    "--feature-base",
+    help="Camera on the robot (eye-in-hand): the fixed feature in the base frame: origin (the base "
+    "mounting flange), estimate, or x,y,z in mm. Default: what samples.json says, else origin.",
+)
 @click.option("--inlier-threshold", type=float, help="Inlier residual in mm (default: robust).")
 @click.option("--allow-coplanar", is_flag=True, help="Accept flange positions on one plane (warned).")
 @click.option(
@@ -251,6 +264,7 @@ def hand_eye(
     verifier: str | None,
     verify_sample: int | None,
     feature: str | None,
+    feature_base: str | None,
     inlier_threshold: float | None,
     allow_coplanar: bool,
     settings_file: Path | None,
@@ -306,6 +320,9 @@ def hand_eye(
         f = _feature(feature)
         if f is not None:
             extra["feature"] = f
+        fb = _feature(feature_base, "--feature-base", "origin") if feature_base else ss.feature_base
+        if fb is not None:
+            extra["feature_base"] = fb
         result = stage.solve(
             ss.samples, config or ss.config, verification=verification, method=method, **extra
         )

@@ -11,6 +11,13 @@ eye-in-hand: ``X = T_flange_camera``, ``B_i = T_flange_base_i``, ``q`` = feature
 It is linear in ``(M = R_X, t_X, q)``: ``M c_i + t_X - R_Bi q = t_Bi``; we solve that, project
 ``M`` onto SO(3) and refine ``(R_X, t_X, q)`` by nonlinear least squares. It needs rotation
 diversity in ``B_i`` (else ``q`` cannot be told from ``t_X``).
+
+When the feature is the centre of a plane face (a flange plate), its measured face normal ``n_i``
+(camera frame) can weight the refinement: the component of each residual along the normal counts
+``normal_weight`` times the in-plane ones. The face plane is measured from thousands of points with
+no edge effects, while the circle centre of an obliquely seen rim drifts within the plane; an
+in-plane drift that grows with the viewing angle is otherwise indistinguishable from ``q`` lying off
+the face, and moves ``t_X`` along the optical axis.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ class FeatureFit:
     residuals: np.ndarray
     inliers: np.ndarray
     condition: float
+    normals: np.ndarray | None = None  # per-sample face normals (camera) the refinement weighted
+    normal_weight: float = 1.0
 
 
 def _linear(c: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -57,18 +66,63 @@ def rotation_spread(R: np.ndarray) -> float:
     return float(2.0 * np.max(ang)) if len(ang) else 0.0
 
 
+def rotation_diversity(R: np.ndarray) -> float:
+    """How well (n, 3, 3) rotations ``R_i`` separate a point ``q`` from a translation in
+    ``t + R_i q``: the rms of ``|R_i v - mean_i R_i v|`` over the samples for the worst unit vector
+    ``v`` (about the rms rotation angle away from ``v``'s axis, rad for small angles). Rotations about
+    one axis only score 0: ``q`` along that axis cannot be told from ``t``."""
+    R = np.asarray(R, float).reshape(-1, 3, 3)
+    D = R - R.mean(axis=0)
+    M = np.einsum("nji,njk->ik", D, D) / max(len(R), 1)
+    return float(np.sqrt(max(np.linalg.eigvalsh(M)[0], 0.0)))
+
+
+def translation_sigma(c: np.ndarray, B: np.ndarray, fit: FeatureFit) -> float:
+    """Predicted 1-sigma error (m) of ``X``'s translation from the fit's covariance on its inliers:
+    ``sqrt(trace(cov_t))`` with ``cov = s^2 (J^T J)^-1`` and ``s^2`` the (weighted) residual variance."""
+    c = np.asarray(c, float).reshape(-1, 3)[fit.inliers]
+    B = np.asarray(B, float).reshape(-1, 4, 4)[fit.inliers]
+    f = _residual_fn(c, B, _rows(fit.normals, fit.inliers), fit.normal_weight)
+    x = np.concatenate([Rotation.from_matrix(fit.T[:3, :3]).as_rotvec(), fit.T[:3, 3], fit.q])
+    h = 1e-6
+    J = np.stack([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in np.eye(9)], axis=1)
+    dof = J.shape[0] - 9
+    if dof <= 0:
+        return float("inf")
+    s2 = float(np.sum(f(x) ** 2)) / dof
+    try:
+        cov = s2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.sqrt(max(np.trace(cov[3:6, 3:6]), 0.0)))
+
+
+def _rows(a: np.ndarray | None, idx) -> np.ndarray | None:
+    return None if a is None else a[idx]
+
+
+def _residual_fn(c: np.ndarray, B: np.ndarray, N: np.ndarray | None = None, w: float = 1.0):
+    """Stacked residuals ``X c_i - B_i q`` of the parameters (rotvec of R_X, t_X, q); with normals
+    ``N`` (camera frame) the component along ``R_X n_i`` is scaled by ``w``."""
+
+    def f(x: np.ndarray) -> np.ndarray:
+        Rx = Rotation.from_rotvec(x[:3]).as_matrix()
+        r = c @ Rx.T + x[3:6] - (B[:, :3, :3] @ x[6:9] + B[:, :3, 3])
+        if N is not None and w != 1.0:
+            nf = N @ Rx.T
+            r = r + (w - 1.0) * nf * np.sum(nf * r, axis=1, keepdims=True)
+        return r.ravel()
+
+    return f
+
+
 def _resid(c, B, R, t, q):
     return np.linalg.norm(c @ R.T + t - (B[:, :3, :3] @ q + B[:, :3, 3]), axis=1)
 
 
-def _refine(c, B, R, t, q):
+def _refine(c, B, R, t, q, N=None, w=1.0):
     x0 = np.concatenate([Rotation.from_matrix(R).as_rotvec(), t, q])
-
-    def f(x):
-        Rx = Rotation.from_rotvec(x[:3]).as_matrix()
-        return (c @ Rx.T + x[3:6] - (B[:, :3, :3] @ x[6:9] + B[:, :3, 3])).ravel()
-
-    sol = least_squares(f, x0, method="lm")
+    sol = least_squares(_residual_fn(c, B, N, w), x0, method="lm")
     return Rotation.from_rotvec(sol.x[:3]).as_matrix(), sol.x[3:6], sol.x[6:9]
 
 
@@ -81,13 +135,25 @@ def fit_with_unknown_point(
     trials: int = 300,
     min_rotation: float = np.radians(5.0),
     rng: np.random.Generator | int | None = 0,
+    normals: np.ndarray | None = None,
+    normal_weight: float = 1.0,
 ) -> FeatureFit:
     """Solve ``X c_i = B_i q`` for ``X`` and ``q`` (see module doc); robust to outliers by least
     median of squares over 6-sample subsets when ``robust``. Raises DataError when the rotations of
-    ``B_i`` are too similar to separate ``q`` from ``X``'s translation."""
+    ``B_i`` are too similar to separate ``q`` from ``X``'s translation. ``normals`` (n, 3, camera
+    frame) with ``normal_weight`` > 1 weight the refinement along each face normal (module doc)."""
     c = np.asarray(c, dtype=float).reshape(-1, 3)
     B = np.asarray(B, dtype=float).reshape(-1, 4, 4)
     n = len(c)
+    N = None
+    if normals is not None:
+        N = np.asarray(normals, dtype=float).reshape(-1, 3)
+        if len(N) != n or not np.all(np.isfinite(N)) or np.any(np.linalg.norm(N, axis=1) < 1e-9):
+            raise DataError(
+                f"{len(N)} face normals for {n} samples (or zero/NaN normals)",
+                "give one finite face normal (camera frame) per sample, or none",
+            )
+        N = N / np.linalg.norm(N, axis=1, keepdims=True)
     if n < 5:
         raise DataError(
             f"{n} samples; estimating the feature offset too needs at least 5",
@@ -128,10 +194,10 @@ def fit_with_unknown_point(
             if new.sum() < 5:
                 break
             inl = new
-            R, t, q = _refine(c[inl], B[inl], R, t, q)
+            R, t, q = _refine(c[inl], B[inl], R, t, q, _rows(N, inl), normal_weight)
             sigma = 1.4826 * np.sqrt(np.median(_resid(c[inl], B[inl], R, t, q) ** 2))
     else:
-        R, t, q = _refine(c, B, R, t, q)
+        R, t, q = _refine(c, B, R, t, q, N, normal_weight)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
-    return FeatureFit(T, q, _resid(c, B, R, t, q), inl, cond)
+    return FeatureFit(T, q, _resid(c, B, R, t, q), inl, cond, N, float(normal_weight))

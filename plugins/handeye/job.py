@@ -1,14 +1,18 @@
-"""The ``calibrate`` job (paper 003): online flange-based hand-eye calibration of a camera fixed in the
-cell (eye-on-base).
+"""The ``calibrate`` job (paper 003): online flange-based hand-eye calibration of a depth camera fixed
+in the cell (eye-on-base, ``T_base_camera``) or mounted on the robot's flange (eye-in-hand,
+``T_flange_camera``).
 
-Plan calibration poses (a grid in a box of the robot base frame, flange facing the camera with bounded
-random tilts), drive them one at a time through the safety gate (a refused pose is skipped with a
-note), scan the flange at each, segment it and fit its centre, and feed the pair to Algorithm 1 until
-its cost reaches ``e_required`` or the poses run out. Every capture (cloud + pose + centre) is saved
-at once, so an interrupted run resumes where it stopped. Writes ``handeye.json``
-(``weldcell/hand-eye@1``), ``samples.json`` (``weldcell/handeye-samples@1``, usable offline by
-``weldcell calibrate hand-eye RUN_DIR``), the report and, in the simulated cell, the error against the
-camera's true mount.
+Plan calibration poses (a grid in a box of the robot base frame with bounded random tilts: the flange
+facing the camera, or, eye-in-hand, the camera facing a fixed ISO 9409-1 flange plate), drive them one
+at a time through the safety gate (a refused pose is skipped with a note), scan the flange at each,
+segment it and fit its centre. Eye-on-base feeds each pair to Algorithm 1 until its cost reaches
+``e_required``; eye-in-hand (Fig. 14a, §4.1: the plate's position ``q`` in the base is a second
+unknown) refits ``X c_i = inv(T_base_flange_i) q`` (:mod:`featurefit`) after each centre and stops
+once the fit's predicted translation error reaches ``e_required``. Both stop when the poses run out.
+Every capture (cloud + pose + centre) is saved at once, so an interrupted run resumes where it
+stopped. Writes ``handeye.json`` (``weldcell/hand-eye@1``), ``samples.json``
+(``weldcell/handeye-samples@1``, eye-on-base: usable offline by ``weldcell calibrate hand-eye
+RUN_DIR``), the report and, in the simulated cell, the error against the camera's true mount.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
+from weldcell.plugins.handeye.featurefit import fit_with_unknown_point, rotation_diversity, translation_sigma
 from weldcell.plugins.handeye.pointfit import scaled_svd_fit
 from weldcell.plugins.handeye.result import HandEyeSample
 from weldcell.plugins.handeye.samples_io import write_result, write_samples
@@ -32,30 +37,48 @@ Vec3 = tuple[Length, Length, Length]
 class CalibrateSettings(Settings):
     """Settings of the online hand-eye calibration job."""
 
-    box_min: Vec3 = Field(description="lower corner of the box the flange visits, robot base frame [m]")
+    box_min: Vec3 = Field(
+        description="lower corner of the box the flange (eye-in-hand: the camera) visits, base frame [m]"
+    )
     box_max: Vec3 = Field(description="upper corner of that box, robot base frame [m]")
     n_poses: int = Field(30, ge=4, le=500, description="calibration poses planned")
     max_tilt: Angle = Field(
         0.3,
         ge=0,
         le=1.2,
-        description="largest random tilt of the flange away from "
-        "facing the camera, about each of its x and y axes [rad] (§3.1: 0.3)",
+        description="largest random tilt of the flange away from facing the camera (eye-in-hand: of the "
+        "camera away from facing the feature), about each of its x and y axes [rad] (§3.1: 0.3)",
     )
     max_spin: Angle = Field(
-        0.3, ge=0, le=3.1416, description="largest random turn about the flange axis [rad]"
+        0.3, ge=0, le=3.1416, description="largest random turn about the flange (camera) axis [rad]"
     )
     face_toward: Vec3 | None = Field(
         None,
-        description="point the flange faces, robot base frame [m]; default: "
-        "the camera's nominal mount in the profile",
+        description="point the flange faces (eye-in-hand: the camera looks at), robot base frame [m]; "
+        "default: the camera's nominal mount in the profile (eye-in-hand: feature_prior)",
+    )
+    feature_prior: Vec3 | None = Field(
+        None,
+        description="eye-in-hand: rough position of the fixed feature (the face centre of the flange plate "
+        "the camera looks at), robot base frame, e.g. by tape measure [m]; the job estimates the exact one",
+    )
+    min_rotation: Angle = Field(
+        0.1,
+        ge=0,
+        le=1.5,
+        description="eye-in-hand: the first min_poses planned poses must turn the camera at least this much "
+        "(rms) about every axis, else the feature cannot be told from the camera offset [rad]",
     )
     seed: int | None = Field(None, description="seed of the pose plan; default: the cell's seed")
-    min_poses: int = Field(8, ge=4, description="Algorithm 1 may stop only after this many flange centres")
-    stop_at_target: bool = Field(True, description="stop once Algorithm 1's cost reaches e_required")
+    min_poses: int = Field(8, ge=4, description="the job may stop only after this many flange centres")
+    stop_at_target: bool = Field(
+        True,
+        description="stop once Algorithm 1's cost (eye-in-hand: the fit's predicted error) reaches "
+        "e_required",
+    )
     verification_scan: bool = Field(
         True,
-        description="scan the flange at the box centre first (the "
+        description="eye-on-base: scan the flange at the box centre first (the "
         "verification cloud of the ICP metric, eq. 13)",
     )
     min_points: int = Field(200, ge=10, description="a scan with fewer valid points has no flange")
@@ -129,13 +152,59 @@ def nominal_T_base_camera(ctx) -> np.ndarray:
     return invert(T_from_rpy(rob.rpy, rob.xyz)) @ T_parent_cam
 
 
-def ground_truth(ctx) -> np.ndarray | None:
-    """The true ``T_base_camera`` in the simulated cell (None on hardware)."""
+def nominal_T_flange_camera(ctx) -> np.ndarray:
+    """The flange-mounted camera's mount as the profile states it (eye-in-hand prior)."""
+    cam = ctx.profile.devices["camera"].mount
+    return T_from_rpy(cam.rpy, cam.xyz)
+
+
+def plan_in_hand(s: CalibrateSettings, T_flange_camera: np.ndarray, seed: int) -> np.ndarray:
+    """Eye-in-hand flange poses (n, 4, 4): :func:`plan_poses` plans the camera (grid in the box,
+    optical axis toward the feature, bounded random tilts and spin) and the nominal mount turns each
+    camera pose into the flange pose that carries it there. Refuses a plan whose first ``min_poses``
+    rotate too little to tell the feature from the mount (:func:`rotation_diversity`)."""
+    if s.feature_prior is None:
+        raise JobError(
+            "eye-in-hand calibration needs the fixed feature's rough position: [job.settings] "
+            "feature_prior is not set",
+            "measure the flange plate's face centre in the robot base frame (a tape measure, a few cm) "
+            "and set feature_prior = [x, y, z]",
+        )
+    toward = s.face_toward if s.face_toward is not None else s.feature_prior
+    cams, _ = plan_poses(s.box_min, s.box_max, s.n_poses, toward, s.max_tilt, s.max_spin, seed)
+    poses = cams @ invert(T_flange_camera)
+    first = poses[: s.min_poses]
+    turn = rotation_diversity(np.transpose(first[:, :3, :3], (0, 2, 1)))
+    if turn < s.min_rotation:
+        raise JobError(
+            f"the first {len(first)} planned poses turn the camera only {np.degrees(turn):.1f} deg (rms) "
+            f"about their least-turned axis; {np.degrees(s.min_rotation):.1f} deg is needed to tell the "
+            "feature's position from the camera's offset on the flange",
+            "widen [job.settings] box_min/box_max around feature_prior (more viewing directions), raise "
+            "max_spin or max_tilt, or lower min_rotation",
+        )
+    return poses
+
+
+def ground_truth(ctx, config: str = "eye-on-base") -> np.ndarray | None:
+    """The true ``T_base_camera`` (eye-in-hand: ``T_flange_camera``) in the simulated cell (None on
+    hardware)."""
     world = ctx.shared.get("sim.world")
     camera = ctx.devices.get("camera")
     if world is None or not hasattr(camera, "T_world_camera"):
         return None
+    if config == "eye-in-hand":
+        return np.asarray(camera.T_parent_camera, float)
     return invert(world.T_world("robot.base")) @ camera.T_world_camera
+
+
+def feature_truth(ctx) -> np.ndarray | None:
+    """The true face centre of the simulated cell's fixed flange plate in the robot base frame."""
+    world = ctx.shared.get("sim.world")
+    plates = [] if world is None else [w for w in world.workpieces if w.kind == "iso9409-plate"]
+    if not plates:
+        return None
+    return (invert(world.T_world("robot.base")) @ plates[0].T_world_workpiece)[:3, 3]
 
 
 # -- motion and capture --------------------------------------------------------------------------
@@ -183,7 +252,7 @@ def _scan(ctx, stage, T_goal: np.ndarray, name: str, predicted, seed: int) -> di
     cloud = frame.to_cloud()
     P = stage.flange.crop(cloud.points) if hasattr(stage, "flange") else stage.crop(cloud.points)
     rec: dict = {"T_base_flange": T.tolist(), "stamp": frame.stamp, "points": int(len(P))}
-    if s.save_clouds:
+    if s.save_clouds and len(P):
         rec["file"] = f"captures/{name}.ply"
         write_cloud(ctx.path(rec["file"]), PointCloud(P.astype(np.float32).astype(float), frame="camera"))
     if len(P) < s.min_points:
@@ -212,12 +281,133 @@ def _config(ctx) -> str:
     parent = ctx.profile.devices["camera"].mount.parent
     if parent in ("world", "base"):
         return "eye-on-base"
+    if parent == "robot.flange":
+        method = getattr(ctx.stage("handeye").s, "method", "")
+        if method == "flange-iterative":
+            raise JobError(
+                "eye-in-hand estimates the fixed feature's position, which Algorithm 1's pool "
+                "('flange-iterative') needs known",
+                "set method = 'flange' (or 'flange-svd') in [stages.handeye.settings]",
+            )
+        return "eye-in-hand"
     raise JobError(
-        f"the camera is mounted on '{parent}': the online flange calibration needs the camera fixed in the "
-        "cell, looking at the robot's flange (eye-on-base)",
-        "mount the camera on 'world'; for eye-in-hand, record samples of a fixed flange and run "
-        "`weldcell calibrate hand-eye DATA_DIR --config eye-in-hand`",
+        f"the camera is mounted on '{parent}': the online calibration handles a camera fixed in the cell "
+        "(eye-on-base, 'world') or on the robot's flange (eye-in-hand, 'robot.flange')",
+        "mount the camera on 'world' or 'robot.flange'; for eye-on-arm or co-manipulation, record samples "
+        "and run `weldcell calibrate hand-eye DATA_DIR --config ...`",
     )
+
+
+class _PoolTracker:
+    """Eye-on-base: Algorithm 1 online (:class:`IncrementalPool`) on (centre in the camera, the
+    flange's feature in the base)."""
+
+    cost_name = "Algorithm 1 cost"
+
+    def __init__(self, pool, feature: np.ndarray) -> None:
+        self.pool, self.feature = pool, feature
+        self.c: list[np.ndarray] = []
+        self.d: list[np.ndarray] = []
+
+    def add(self, c: np.ndarray, T_base_flange: np.ndarray, normal: np.ndarray) -> None:
+        self.c.append(c)
+        self.d.append((T_base_flange @ np.r_[self.feature, 1.0])[:3])
+        self.pool.add(c, self.d[-1])
+
+    @property
+    def H(self) -> np.ndarray | None:
+        return self.pool.H
+
+    @property
+    def cost(self) -> float:
+        return self.pool.cost
+
+    @property
+    def converged(self) -> bool:
+        return self.pool.converged
+
+    def predicted(self, T_goal: np.ndarray) -> np.ndarray | None:
+        return None if self.H is None else predicted_p_cam(self.H, T_goal, self.feature)
+
+    def row(self, truth: np.ndarray) -> dict:
+        row = {} if self.H is None else {"pool_error": pose_error(self.H, truth)}
+        if len(self.c) >= 4:
+            row["all_data_error"] = pose_error(scaled_svd_fit(np.array(self.c), np.array(self.d)).T, truth)
+        return row
+
+    def metrics(self, index: list[int]) -> dict:
+        return {
+            "pool": [index[j] for j in self.pool.pool],
+            "pool_cost_m": self.pool.cost,
+            "pool_converged": self.pool.converged,
+        }
+
+    def figures(self, truth: np.ndarray, result, q_true) -> dict:
+        if self.H is None:
+            return {}
+        dt, dr = pose_error(self.H, truth)
+        return {
+            "algorithm1_error_vs_truth": {"translation_mm": dt * 1e3, "rotation_deg": float(np.degrees(dr))}
+        }
+
+
+class _FeatureTracker:
+    """Eye-in-hand: ``X c_i = inv(T_base_flange_i) q`` refit on every centre so far
+    (:func:`fit_with_unknown_point`); its cost is the fit's predicted 1-sigma translation error.
+    Scans are cropped around where the plate should appear: by the prior (nominal mount and
+    ``feature_prior``) until the fit predicts better than :attr:`TRUST` (m), then by the fit."""
+
+    cost_name = "predicted error (1 sigma)"
+    TRUST = 0.005
+
+    def __init__(self, flange, seed: int, X_prior: np.ndarray, q_prior) -> None:
+        self.flange, self.seed = flange, seed
+        self.prior = (np.asarray(X_prior, float), np.asarray(q_prior, float))
+        self.c: list[np.ndarray] = []
+        self.B: list[np.ndarray] = []
+        self.n: list[np.ndarray] = []
+        self.fit = None
+        self.cost = float("inf")
+
+    def add(self, c: np.ndarray, T_base_flange: np.ndarray, normal: np.ndarray) -> None:
+        self.c.append(c)
+        self.B.append(invert(T_base_flange))
+        self.n.append(normal)
+        C, B, fs = np.array(self.c), np.array(self.B), self.flange.s
+        try:
+            fit = fit_with_unknown_point(
+                C,
+                B,
+                len(C) >= 8,
+                fs.n_sigma,
+                fs.min_threshold,
+                rng=self.seed,
+                normals=np.array(self.n),
+                normal_weight=fs.normal_weight,
+            )
+        except DataError:  # too few centres or too little rotation so far
+            return
+        self.fit, self.cost = fit, translation_sigma(C, B, fit)
+
+    @property
+    def converged(self) -> bool:
+        return self.fit is not None and self.cost <= self.flange.e_required
+
+    def predicted(self, T_goal: np.ndarray) -> np.ndarray:
+        X, q = (self.fit.T, self.fit.q) if self.cost < self.TRUST else self.prior
+        return (invert(X) @ invert(T_goal) @ np.r_[q, 1.0])[:3]
+
+    def row(self, truth: np.ndarray) -> dict:
+        return {} if self.fit is None else {"all_data_error": pose_error(self.fit.T, truth)}
+
+    def metrics(self, index: list[int]) -> dict:
+        return {"predicted_error_m": self.cost, "converged": self.converged}
+
+    def figures(self, truth: np.ndarray, result, q_true) -> dict:
+        q = result.extra.get("feature_base")
+        if q is None or q_true is None:
+            return {}
+        return {"feature_error_mm": float(np.linalg.norm(np.asarray(q) - q_true) * 1e3)}
 
 
 def _record_public(rec: dict) -> dict:
@@ -243,23 +433,30 @@ def _verification(ctx, stage, T_v: np.ndarray, seed: int):
     return rec["_face"], np.asarray(rec["T_base_flange"], float)
 
 
-def run(ctx) -> dict:
-    """The whole job; returns the figures written into result.json."""
-    from weldcell.plugins.handeye.report import write_report
+def _not_seen(config: str, n_ok: int, n_planned: int) -> JobError:
+    need = 4 if config == "eye-on-base" else 5
+    if config == "eye-on-base":
+        fix = (
+            "check the box faces the camera in range (see the skipped poses in state.json notes), widen "
+            "[job.settings] box_min/box_max or the stage's pass-through box"
+        )
+    else:
+        fix = (
+            "check [job.settings] feature_prior (the plate's face centre in the base frame) and that "
+            "box_min/box_max keep the camera in range of it (see the skipped poses in state.json "
+            "notes), and the stage's pass-through box box_min/box_max (camera frame)"
+        )
+    return JobError(
+        f"only {n_ok} flange centre(s) measured from {n_planned} planned poses (need {need})", fix
+    )
 
+
+def _tracker(ctx, config: str, stage, T_v: np.ndarray | None, seed: int):
+    """The online estimator (eye-on-base: Algorithm 1 with its verification) and the verification."""
     s: CalibrateSettings = ctx.settings
-    config = _config(ctx)
-    stage = ctx.stage("handeye")
     flange = getattr(stage, "flange", stage)
-    feature = np.asarray(flange.s.feature, float)
-    seed = ctx.profile.cell.seed if s.seed is None else s.seed
-    toward = s.face_toward if s.face_toward is not None else nominal_T_base_camera(ctx)[:3, 3]
-    poses, T_v = plan_poses(s.box_min, s.box_max, s.n_poses, toward, s.max_tilt, s.max_spin, seed)
-    truth = ground_truth(ctx)
-
-    done = {rec["index"]: rec for rec in ctx.state.captures if rec.get("kind") == "pose"}
-    if done:
-        ctx.reporter.info(f"resuming with {len(done)} pose(s) already visited")
+    if config == "eye-in-hand":
+        return _FeatureTracker(flange, seed, nominal_T_flange_camera(ctx), s.feature_prior), None
     use_icp = stage.needs == "flange" and flange.s.verifier == "icp"
     verification = _verification(ctx, flange, T_v, seed) if (use_icp and s.verification_scan) else None
     if use_icp and verification is None:
@@ -268,31 +465,46 @@ def run(ctx) -> dict:
             "set verification_scan = true, or verifier = 'consensus' in [stages.handeye.settings]",
         )
     pool = flange.pool(verification, verifier=None if use_icp else "consensus")
+    return _PoolTracker(pool, np.asarray(flange.s.feature, float)), verification
+
+
+def run(ctx) -> dict:
+    """The whole job; returns the figures written into result.json."""
+    from weldcell.plugins.handeye.report import write_report
+
+    s: CalibrateSettings = ctx.settings
+    config = _config(ctx)
+    stage = ctx.stage("handeye")
+    seed = ctx.profile.cell.seed if s.seed is None else s.seed
+    if config == "eye-in-hand":
+        poses, T_v = plan_in_hand(s, nominal_T_flange_camera(ctx), seed), None
+    else:
+        toward = s.face_toward if s.face_toward is not None else nominal_T_base_camera(ctx)[:3, 3]
+        poses, T_v = plan_poses(s.box_min, s.box_max, s.n_poses, toward, s.max_tilt, s.max_spin, seed)
+    truth = ground_truth(ctx, config)
+
+    done = {rec["index"]: rec for rec in ctx.state.captures if rec.get("kind") == "pose"}
+    if done:
+        ctx.reporter.info(f"resuming with {len(done)} pose(s) already visited")
+    tracker, verification = _tracker(ctx, config, stage, T_v, seed)
     track: list[dict] = []
     ok_recs: list[dict] = []
 
     def feed(rec: dict) -> None:
-        T = np.asarray(rec["T_base_flange"], float)
-        pool.add(np.asarray(rec["p_cam"], float), (T @ np.r_[feature, 1.0])[:3])
+        tracker.add(*(np.asarray(rec[k], float) for k in ("p_cam", "T_base_flange", "normal")))
         ok_recs.append(rec)
-        row = {"n": len(ok_recs), "cost": pool.cost}
-        if truth is not None:
-            if pool.H is not None:
-                row["pool_error"] = pose_error(pool.H, truth)
-            if len(ok_recs) >= 4:
-                c = np.array([r["p_cam"] for r in ok_recs])
-                d = np.array([(np.asarray(r["T_base_flange"]) @ np.r_[feature, 1.0])[:3] for r in ok_recs])
-                row["all_data_error"] = pose_error(scaled_svd_fit(c, d).T, truth)
-        track.append(row)
+        track.append(
+            {"n": len(ok_recs), "cost": tracker.cost, **({} if truth is None else tracker.row(truth))}
+        )
 
     notes: list[str] = []
     stop = "poses exhausted"
-    with ctx.step("calibration poses (scan + flange + Algorithm 1)", total=len(poses)) as advance:
+    with ctx.step("calibration poses (scan + flange + fit)", total=len(poses)) as advance:
         for i, T_goal in enumerate(poses):
             if i in done:
                 rec = done[i]
             else:
-                predicted = None if pool.H is None else predicted_p_cam(pool.H, T_goal, feature)
+                predicted = tracker.predicted(T_goal)
                 rec = {"kind": "pose", "index": i, **_scan(ctx, stage, T_goal, f"{i:03d}", predicted, seed)}
                 ctx.state.add_capture(_record_public(rec))
             if rec["status"] == "ok":
@@ -301,9 +513,12 @@ def run(ctx) -> dict:
                 notes.append(f"pose {i}: {rec['status']}: {rec['reason']}")
                 if i not in done:
                     ctx.reporter.info(f"[yellow]pose {i} {rec['status']}: {rec['reason']}[/yellow]")
-            advance(i + 1, len(poses), f"{len(ok_recs)} centres, cost {pool.cost * 1e3:.3g} mm")
-            if s.stop_at_target and pool.converged and len(ok_recs) >= s.min_poses:
-                stop = f"Algorithm 1 cost {pool.cost * 1e3:.3f} mm <= e_required after {len(ok_recs)} centres"
+            advance(
+                i + 1, len(poses), f"{len(ok_recs)} centres, {tracker.cost_name} {tracker.cost * 1e3:.3g} mm"
+            )
+            if s.stop_at_target and tracker.converged and len(ok_recs) >= s.min_poses:
+                stop = f"{tracker.cost_name} {tracker.cost * 1e3:.3f} mm <= e_required after {len(ok_recs)} "
+                stop += "centres"
                 break
     ctx.state.data["notes"]["skipped"] = notes
     ctx.state.save()
@@ -314,18 +529,16 @@ def run(ctx) -> dict:
             p_cam=np.asarray(r["p_cam"], float),
             T_cam_target=None if "T_cam_target" not in r else np.asarray(r["T_cam_target"]),
             cloud=str(ctx.run_dir / r["file"]) if "file" in r else None,
-            meta={"index": r["index"]},
+            meta={"index": r["index"], "normal": r["normal"]},
         )
         for r in ok_recs
     ]
-    if len(samples) < 4:
-        raise JobError(
-            f"only {len(samples)} flange centre(s) measured from {len(poses)} planned poses (need 4)",
-            "check the box faces the camera in range (see the skipped poses in state.json notes), widen "
-            "[job.settings] box_min/box_max or the stage's pass-through box",
-        )
+    if len(samples) < (4 if config == "eye-on-base" else 5):
+        raise _not_seen(config, len(samples), len(poses))
+    extra = {"feature_base": "estimate"} if config == "eye-in-hand" else {}
     with ctx.step(f"solve ({stage.name}, {getattr(stage.s, 'method', '')})"):
-        result = stage.solve(samples, config, verification=verification)
+        result = stage.solve(samples, config, verification=verification, **extra)
+    index = [int(r["index"]) for r in ok_recs]
     result.metrics["online"] = {
         "planned": len(poses),
         "visited": sum(1 for r in ctx.state.captures if r.get("kind") == "pose"),
@@ -333,15 +546,13 @@ def run(ctx) -> dict:
         "refused": sum("refused" in n for n in notes),
         "no_flange": sum("no-flange" in n for n in notes),
         "stop": stop,
-        "pool": [int(ok_recs[j]["index"]) for j in pool.pool],
-        "pool_cost_m": pool.cost,
-        "pool_converged": pool.converged,
+        **tracker.metrics(index),
         "cost_history_m": [t["cost"] for t in track],
     }
-    result.metrics["sample_index"] = [r["index"] for r in ok_recs]
+    result.metrics["sample_index"] = index
     result.warnings += [f"skipped {n}" for n in notes]
     write_result(ctx.path("handeye.json"), result)
-    write_samples(ctx.path("samples.json"), samples, config)
+    write_samples(ctx.path("samples.json"), samples, config, feature_base=extra.get("feature_base"))
     figures: dict = {
         "transform": result.name,
         "method": result.method,
@@ -353,12 +564,7 @@ def run(ctx) -> dict:
     if truth is not None:
         dt, dr = pose_error(result.T, truth)
         figures["error_vs_truth"] = {"translation_mm": dt * 1e3, "rotation_deg": float(np.degrees(dr))}
-        if pool.H is not None:
-            dt2, dr2 = pose_error(pool.H, truth)
-            figures["algorithm1_error_vs_truth"] = {
-                "translation_mm": dt2 * 1e3,
-                "rotation_deg": float(np.degrees(dr2)),
-            }
+        figures.update(tracker.figures(truth, result, feature_truth(ctx)))
     if ctx.profile.output.report:
         with ctx.step("report"):
             write_report(ctx, result, track, notes, truth, stop)

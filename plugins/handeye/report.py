@@ -19,10 +19,12 @@ def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> lis
     res = np.asarray(result.residuals, float) * 1e3
     inl = np.asarray(result.inliers, bool)
     idx = m.get("sample_index") or list(range(len(res)))
+    to, frm = result.name.split("_")[1], result.name.split("_")[-1]
     lines = [
         f"{result.name:<15} xyz [{T[0, 3] * 1e3:.2f}, {T[1, 3] * 1e3:.2f}, {T[2, 3] * 1e3:.2f}] mm   "
         f"rpy [{rpy[0]:.3f}, {rpy[1]:.3f}, {rpy[2]:.3f}] deg",
         f"configuration   {result.config}, method {result.method}",
+        f"convention      p_{to} = {result.name} @ p_{frm} (metres)",
     ]
     ok = np.isfinite(res)
     if ok.any():
@@ -68,10 +70,20 @@ def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> lis
             f"poses           {on['visited']} of {on['planned']} visited, {on['centres']} centres, "
             f"{on['refused']} refused by the safety gate, {on['no_flange']} without a flange"
         )
-        lines.append(
-            f"Algorithm 1     cost {on['pool_cost_m'] * 1e3:.3f} mm, pool = poses {on['pool']}; "
-            f"stopped: {on['stop']}"
-        )
+        if "pool" in on:
+            lines.append(
+                f"Algorithm 1     cost {on['pool_cost_m'] * 1e3:.3f} mm, pool = poses {on['pool']}; "
+                f"stopped: {on['stop']}"
+            )
+        else:
+            lines.append(
+                f"estimate        predicted error (1 sigma) {on['predicted_error_m'] * 1e3:.3f} mm; "
+                f"stopped: {on['stop']}"
+            )
+    q = result.extra.get("feature_base")
+    if q is not None:
+        q = np.asarray(q, float) * 1e3
+        lines.append(f"feature         in the base frame [{q[0]:.2f}, {q[1]:.2f}, {q[2]:.2f}] mm (estimated)")
     b = m.get("bootstrap") or {}
     if "t_std" in b:
         t = np.asarray(b["t_std"]) * 1e3
@@ -122,12 +134,16 @@ def _plots(folder: Path, result: HandEyeResult, track: list[dict], truth) -> lis
         cost = np.array([t["cost"] for t in track]) * 1e3
         axes[0].semilogy(n[np.isfinite(cost)], cost[np.isfinite(cost)], "o-")
         axes[0].set_xlabel("samples collected")
-        axes[0].set_ylabel("Algorithm 1 cost [mm]")
-        axes[0].set_title("cost of the 4-pair pool")
+        in_hand = result.config == "eye-in-hand"
+        axes[0].set_ylabel("predicted error, 1 sigma [mm]" if in_hand else "Algorithm 1 cost [mm]")
+        axes[0].set_title("uncertainty of the fit so far" if in_hand else "cost of the 4-pair pool")
         axes[0].grid(alpha=0.3, which="both")
         if truth is not None:
             for k, (key, label) in enumerate(
-                (("pool_error", "Algorithm 1 (pool)"), ("all_data_error", "all data (eqs. 9-12)"))
+                (
+                    ("pool_error", "Algorithm 1 (pool)"),
+                    ("all_data_error", "all data (X c = inv(B) q)" if in_hand else "all data (eqs. 9-12)"),
+                )
             ):
                 rows = [(t["n"], *t[key]) for t in track if key in t]
                 if not rows:

@@ -7,8 +7,11 @@
                  {"T_base_flange": ..., "image": "003.png"}, ...]}
 
 ``units`` applies to every length (translations, p_cam, p_base, clouds); values are converted to
-metres on reading. Readers for the layouts of the ancorasir flange hand-eye data set convert their
-own unit mix explicitly.
+metres on reading. A sample may carry ``"normal"`` (the measured face normal in the camera frame, for
+the stage's ``normal_weight``); the file may say where a fixed feature is for a moving camera,
+``"feature_base"``: ``"origin"`` (the base mounting flange), ``"estimate"`` or ``[x, y, z]``.
+Readers for the layouts of the ancorasir flange hand-eye data set convert their own unit mix
+explicitly.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ class SampleSet:
     samples: list[HandEyeSample]
     root: Path | None = None
     notes: list[str] = field(default_factory=list)
+    feature_base: str | list[float] | None = None  # the file's "feature_base" (metres), if it gives one
 
 
 def _pose(value, scale: float, where: str) -> np.ndarray:
@@ -94,6 +98,8 @@ def read_samples(path: str | Path) -> SampleSet:
         for k in ("cloud", "image"):
             if s.get(k):
                 kw[k] = str((path.parent / s[k]).resolve())
+        if s.get("normal") is not None:
+            kw["meta"]["normal"] = _unit_vector(s["normal"], f"{path.name} sample {i} normal")
         kw["meta"]["cloud_units"] = s.get("cloud_units", units)
         if s.get("phase"):
             kw["phase"] = str(s["phase"])
@@ -105,12 +111,38 @@ def read_samples(path: str | Path) -> SampleSet:
     tr = [s_.T_base_flange[:3, 3] for s_ in out if s_.T_base_flange is not None]
     if tr:
         check_units(f"{path.name} T_base_flange translations", np.array(tr))
-    return SampleSet(config, out, path.parent)
+    feature_base = _feature_base(doc.get("feature_base"), scale, path)
+    return SampleSet(config, out, path.parent, feature_base=feature_base)
 
 
-def write_samples(path: str | Path, samples: list[HandEyeSample], config: str = "eye-on-base") -> Path:
+def _unit_vector(value, where: str) -> list[float]:
+    v = np.asarray(value, float).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+        raise DataError(f"{where} must be 3 finite numbers, not all zero", "fix or drop the sample's normal")
+    return (v / np.linalg.norm(v)).tolist()
+
+
+def _feature_base(value, scale: float, path: Path) -> str | list[float] | None:
+    if value is None or value in ("origin", "estimate"):
+        return value
+    p = np.asarray(value, float).reshape(-1) if not isinstance(value, str) else np.zeros(0)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise DataError(
+            f"{path.name}: feature_base {value!r} is not 'origin', 'estimate' or [x, y, z]",
+            "give the fixed feature's position in the base frame, or 'estimate'",
+        )
+    return (p * scale).tolist()
+
+
+def write_samples(
+    path: str | Path,
+    samples: list[HandEyeSample],
+    config: str = "eye-on-base",
+    feature_base: str | list[float] | None = None,
+) -> Path:
     """Write samples (metres) as ``samples.json``. Clouds/images must already be files (their
-    paths are written relative to the file's folder when possible)."""
+    paths are written relative to the file's folder when possible); a sample's ``meta["normal"]`` is
+    kept; ``feature_base`` (moving camera: "origin", "estimate" or xyz in m) is written when given."""
     path = Path(path)
     rows = []
     for s in samples:
@@ -129,10 +161,14 @@ def write_samples(path: str | Path, samples: list[HandEyeSample], config: str = 
                     row[k] = str(p)
         if s.phase:
             row["phase"] = s.phase
+        if s.meta.get("normal") is not None:
+            row["normal"] = np.asarray(s.meta["normal"], float).tolist()
         rows.append(row)
-    return write_json(
-        path, {"schema": SAMPLES_SCHEMA, "config": config_name(config), "units": "m", "samples": rows}
-    )
+    doc: dict = {"schema": SAMPLES_SCHEMA, "config": config_name(config), "units": "m"}
+    if feature_base is not None:
+        fb = feature_base
+        doc["feature_base"] = fb if isinstance(fb, str) else [float(v) for v in fb]
+    return write_json(path, {**doc, "samples": rows})
 
 
 def write_result(path: str | Path, result: HandEyeResult) -> Path:

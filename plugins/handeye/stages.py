@@ -84,6 +84,13 @@ class FlangeSettings(Settings):
     n_sigma: float = Field(3.0, gt=0, description="inlier threshold in robust sigmas")
     min_threshold: Length = Field(0.0003, ge=0, description="floor of the robust inlier threshold [m]")
     allow_coplanar: bool = Field(False, description="accept flange positions on one plane (with a warning)")
+    normal_weight: float = Field(
+        1.0,
+        ge=1.0,
+        description="eye-in-hand (feature position estimated): weight of each centre's component along "
+        "its measured face normal against the in-plane ones; > 1 keeps an oblique rim's in-plane drift "
+        "out of the camera translation (1 = the plain point fit)",
+    )
     bootstrap: int = Field(100, ge=0, description="bootstrap resamples for the confidence (0 = off)")
     # Algorithm 1
     verifier: Literal["icp", "consensus"] = Field(
@@ -96,7 +103,8 @@ class FlangeSettings(Settings):
     e_required: Length | None = Field(
         None,
         ge=0,
-        description="Algorithm 1 stops once the cost is this low [m]; default 0.5 mm with the ICP metric, "
+        description="Algorithm 1 stops once the cost is this low (the eye-in-hand job: the fit's predicted "
+        "1-sigma translation error) [m]; default 0.5 mm with the ICP metric, "
         "0 (use every pair) with the consensus verifier, whose cost is ~0 on the first pairs",
     )
     pool_k_max: int = Field(10_000, ge=0, description="Algorithm 1 iteration limit k_max")
@@ -355,6 +363,7 @@ class FlangeHandEye:
         return {
             "feature": list(self.s.feature),
             "allow_coplanar": self.s.allow_coplanar,
+            "normal_weight": self.s.normal_weight,
             "inlier_threshold": self.s.inlier_threshold,
             "n_sigma": self.s.n_sigma,
             "min_threshold": self.s.min_threshold,

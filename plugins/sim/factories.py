@@ -142,14 +142,14 @@ def probe(settings) -> str:
 
 def check_sim_section(loaded) -> list[tuple[tuple[str, ...], str]]:
     """Workpiece kinds and parameter names of the [sim] section (cheap: nothing is built)."""
-    from weldcell.hal.sim.workpieces import workpiece_parameters
+    from weldcell.hal.sim.world import scene_parameters
 
     problems = []
     uses_sim = any(e.plugin.endswith(".sim") for e in loaded.profile.devices.values())
     for i, w in enumerate(loaded.profile.sim.workpieces):
         key = ("sim", "workpieces", str(i))
         try:
-            valid = workpiece_parameters(w.kind)
+            valid = scene_parameters(w.kind)
         except DataError as e:
             problems.append(((*key, "kind"), f"{e.message}; {e.fix}"))
             continue

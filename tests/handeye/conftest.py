@@ -1,6 +1,7 @@
 from pathlib import Path
 
 import pytest
+import weldcell.plugins.handeye as handeye_plugin
 
 DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
 FLANGE = DATA / "flange-handeye-ancorasir"
@@ -19,3 +20,22 @@ def aruco_data() -> Path:
     if not ARUCO.is_dir():
         pytest.skip(f"shared data not found at {ARUCO} (OpenCV ArUco/ChArUco photos)")
     return ARUCO
+
+
+@pytest.fixture
+def he_pm(sim_pm):
+    """The simulated cell's plugin manager with the handeye plugin registered."""
+    sim_pm.register(handeye_plugin, "handeye", distribution="weldcell")
+    return sim_pm
+
+
+@pytest.fixture
+def extend_profile(tmp_path):
+    """``extend_profile(base, name, text)``: a profile in tmp_path that extends ``base`` with ``text``."""
+
+    def write(base: Path, name: str, text: str) -> Path:
+        p = tmp_path / name
+        p.write_text(f'extends = "{base}"\n{text}')
+        return p
+
+    return write

@@ -154,6 +154,38 @@ def test_too_few_samples(cli, tmp_path):
     assert not (tmp_path / "he.json").exists()
 
 
+def test_eye_in_hand_fixed_feature_from_the_file_or_the_option(cli, tmp_path):
+    """A camera on the flange looking at a plate 0.4 m from the base origin: samples.json's
+    feature_base "estimate" (what the online job writes) finds it; --feature-base origin, which says
+    the feature is the base mounting flange, cannot fit; a malformed option is one usage error."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    X = T_from_rpy([0.01, -0.02, 0.03], [0.002, -0.06, 0.04])  # T_flange_camera
+    q = np.array([0.4, 0.1, 0.01])  # the plate in the base frame
+    samples = []
+    for _ in range(12):
+        R = Rotation.from_rotvec(rng.uniform(-0.4, 0.4, 3)).as_matrix() @ np.diag([1.0, -1.0, -1.0])
+        G = np.eye(4)
+        G[:3, :3], G[:3, 3] = R, q + R @ [0, 0.06, -0.55] + rng.uniform(-0.05, 0.05, 3)
+        c = (invert(G @ X) @ np.r_[q, 1.0])[:3] + rng.normal(0, 1e-4, 3)
+        samples.append(HandEyeSample(T_base_flange=G, p_cam=c, meta={"normal": [0.0, 0.0, -1.0]}))
+    write_samples(tmp_path / "samples.json", samples, "eye-in-hand", feature_base="estimate")
+    doc = json.loads((tmp_path / "samples.json").read_text())
+    assert doc["feature_base"] == "estimate" and doc["samples"][0]["normal"] == [0.0, 0.0, -1.0]
+    code, out = cli(tmp_path, "-o", tmp_path / "he.json")
+    assert code == 0, out
+    dt, dr = pose_error(_T(tmp_path / "he.json"), X)
+    assert dt < 1e-3 and np.degrees(dr) < 0.1, (dt, np.degrees(dr))
+    fb = json.loads((tmp_path / "he.json").read_text())["extra"]["feature_base"]
+    assert np.linalg.norm(np.asarray(fb) - q) < 1e-3
+    code, out = cli(tmp_path, "-o", tmp_path / "origin.json", "--feature-base", "origin")
+    assert code == 0 and "far above a scanner's noise" in out and "feature_base" in out
+    assert pose_error(_T(tmp_path / "origin.json"), X)[0] > 0.05
+    code, out = cli(tmp_path, "-o", tmp_path / "bad.json", "--feature-base", "1,2")
+    assert code == 2 and "--feature-base '1,2' is not origin, estimate or x,y,z" in out
+
+
 def test_mixed_units(cli, tmp_path):
     def mm_sample(doc):
         doc["samples"][4]["p_cam"] = [v * 1e3 for v in doc["samples"][4]["p_cam"]]

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import weldcell.plugins.handeye as handeye_plugin
 from weldcell.hal.sim.devices import SimDepthCamera, SimRobot
 from weldcell.hal.sim.flange import flange_for
 from weldcell.hal.sim.kinematics import get_model
@@ -24,18 +23,6 @@ from weldcell.sdk.jobs import run_job
 
 PROFILE = Path(__file__).resolve().parents[2] / "profiles" / "cell2-calibrate-sim.toml"
 T_WORLD_CAMERA = T_from_rpy(np.radians([-90, 0, 90]), [1.45, 0.0, 0.55])
-
-
-@pytest.fixture
-def he_pm(sim_pm):
-    sim_pm.register(handeye_plugin, "handeye", distribution="weldcell")
-    return sim_pm
-
-
-def _profile(tmp_path: Path, name: str, text: str) -> Path:
-    p = tmp_path / name
-    p.write_text(f'extends = "{PROFILE}"\n{text}')
-    return p
 
 
 @pytest.fixture(scope="module")
@@ -127,8 +114,8 @@ def test_calibrate_job_end_to_end_in_the_sim(he_pm, tmp_path):
     assert (run / "report" / "convergence.png").is_file() and (run / "report" / "residuals.png").is_file()
 
 
-def test_resume_after_the_camera_stops_keeps_the_captures(he_pm, tmp_path):
-    broken = _profile(tmp_path, "broken.toml", "[devices.camera.settings]\nstop_after = 5\n")
+def test_resume_after_the_camera_stops_keeps_the_captures(he_pm, tmp_path, extend_profile):
+    broken = extend_profile(PROFILE, "broken.toml", "[devices.camera.settings]\nstop_after = 5\n")
     with pytest.raises(JobError, match="--resume"):
         run_job(broken, he_pm, runs_dir=tmp_path / "runs")
     run = next((tmp_path / "runs").iterdir())
@@ -149,10 +136,10 @@ def test_resume_after_the_camera_stops_keeps_the_captures(he_pm, tmp_path):
     assert result["figures"]["error_vs_truth"]["translation_mm"] < 0.3
 
 
-def test_refused_poses_are_skipped_never_sent(he_pm, tmp_path):
+def test_refused_poses_are_skipped_never_sent(he_pm, tmp_path, extend_profile):
     """A workspace box that cuts the top of the pose box: those poses are refused and noted."""
-    p = _profile(
-        tmp_path,
+    p = extend_profile(
+        PROFILE,
         "tight.toml",
         "[cell.safety]\nworkspace_max = [1.0, 0.9, 0.62]\n"
         "[job.settings]\nstop_at_target = false\nn_poses = 14\nmin_poses = 4\n",
@@ -166,10 +153,12 @@ def test_refused_poses_are_skipped_never_sent(he_pm, tmp_path):
     assert "refused by the safety gate" in (run / "summary.txt").read_text()
 
 
-def test_eye_in_hand_mount_is_refused_with_the_offline_route(he_pm, tmp_path):
-    p = _profile(
-        tmp_path, "eih.toml", '[devices.camera]\nmount = { parent = "robot.flange", xyz = [0, 0, 0.1] }\n'
+def test_eye_in_hand_mount_needs_the_feature_prior(he_pm, tmp_path, extend_profile):
+    """A camera on the flange is calibrated eye-in-hand (tests/handeye/test_handeye_job_in_hand.py),
+    against a fixed plate whose rough position the profile must give."""
+    p = extend_profile(
+        PROFILE, "eih.toml", '[devices.camera]\nmount = { parent = "robot.flange", xyz = [0, 0, 0.1] }\n'
     )
-    with pytest.raises(JobError, match="eye-on-base") as e:
+    with pytest.raises(JobError, match="feature_prior is not set") as e:
         run_job(p, he_pm, runs_dir=tmp_path)
-    assert "weldcell calibrate hand-eye" in e.value.fix
+    assert "tape measure" in e.value.fix
