@@ -62,6 +62,8 @@ DEFAULTS: dict = {
     "k_max": 10_000,
     "compensate": False,
     "inner": "best",  # Algorithm 1 inner loop: "best" of the four replacements, or "sequential" (as listed)
+    "search": "published",  # Algorithm 1 pool search: "published", or "wide" (+ `budget` 4-subsets a pair)
+    "budget": 64,
     "refit": None,  # after Algorithm 1: refit on the pairs within refit x the pool's residual scale (3.0)
     "resolve_translation": False,  # target-based: re-solve the translation once the rotation is fixed
     "bootstrap": 100,
@@ -362,6 +364,9 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         verifier_sees_count=sees,
         inner=s["inner"],
         refit=s["refit"],
+        search=s["search"],
+        budget=int(s["budget"]),
+        seed=s["seed"],
     )
     X = pr.H_compensated if (s["compensate"] and pr.H_compensated is not None) else pr.H
     if pr.H_refit is not None:

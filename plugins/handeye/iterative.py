@@ -1,10 +1,21 @@
 """The iterative flange calibration of Algorithm 1: a pool of four point pairs kept optimal under a
-verification cost, grown online one new pair at a time."""
+verification cost, grown online one new pair at a time.
+
+``search="published"`` is the listing's loop (the four single replacements per new pair).
+``search="wide"`` adds, per new pair, up to ``budget`` further 4-subsets that contain it (all of
+them while there are at most ``budget``, else a seeded random sample) and the four replacements of
+the best pool found so far, while the published pool is carried along: its result is never worse
+under the verifier than the published loop's on the same data. Near-collinear subsets (robot-side
+s2/s1 < 0.05) are not tried by the wide search: their rotation about the line is noise, and a weak
+verifier (the consensus one with few pairs seen) can accept them.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import combinations
+from math import comb
 from typing import Literal
 
 import numpy as np
@@ -17,7 +28,8 @@ from weldcell.sdk.errors import DataError
 class PoolResult:
     """Algorithm 1's output. ``H`` = Ĥ_optimal, ``e`` = e_optimal (None: +inf), ``pool`` = indices of
     the four pairs kept, ``history`` = cost after each collected pair (index k = pairs seen - 1),
-    ``H_history`` = Ĥ_optimal after each pair, ``n_used`` = pairs consumed before stopping.
+    ``H_history`` = Ĥ_optimal after each pair, ``n_used`` = pairs consumed before stopping,
+    ``n_verified`` = verifier calls made.
     With ``refit``: ``H_refit`` = least squares (eqs. 10-12) on every pair seen that agrees with Ĥ_optimal,
     ``refit_inliers`` = their indices."""
 
@@ -33,6 +45,117 @@ class PoolResult:
     events: list[str] = field(default_factory=list)
     H_refit: np.ndarray | None = None
     refit_inliers: list[int] | None = None
+    n_verified: int = 0
+
+
+@dataclass
+class _State:
+    """A pool: pair indices, its fit Ĥ, verifier error e and cost."""
+
+    pool: list[int]
+    H: np.ndarray
+    e: np.ndarray | None
+    cost: float
+
+
+class _Scorer:
+    """Fits and verifies candidate pools, counting verifier calls."""
+
+    def __init__(
+        self, src: np.ndarray, dst: np.ndarray, verifier: Callable, cost: Cost, sees_count: bool
+    ) -> None:
+        self.src, self.dst, self.verifier, self.cost, self.sees = src, dst, verifier, cost, sees_count
+        self.calls = 0
+
+    def verify(self, H: np.ndarray, seen: int) -> np.ndarray | None:
+        self.calls += 1
+        return self.verifier(H, seen) if self.sees else self.verifier(H)
+
+    def best_of(self, cand: np.ndarray, seen: int) -> _State:
+        """The lowest-cost pool among the rows of ``cand`` (m, pool_size) (first one on ties)."""
+        Hs = rigid_fit_batch(self.src[cand], self.dst[cand])
+        es = [self.verify(H, seen) for H in Hs]
+        costs = np.array([self.cost(e) for e in es])
+        i = int(np.argmin(costs))
+        return _State([int(p) for p in cand[i]], Hs[i], es[i], float(costs[i]))
+
+    def rescore(self, s: _State, seen: int) -> _State:
+        """``s`` re-verified (the consensus reference moved with the new data)."""
+        e = self.verify(s.H, seen)
+        return _State(s.pool, s.H, e, self.cost(e))
+
+
+def _check_args(n: int, pool_size: int, inner: str, search: str, budget: int) -> None:
+    if inner not in ("best", "sequential"):
+        raise DataError(f"unknown inner loop '{inner}'", "use inner='best' or inner='sequential'")
+    if search not in ("published", "wide"):
+        raise DataError(f"unknown search '{search}'", "use search='published' or search='wide'")
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget <= 0:
+        raise DataError(f"budget = {budget!r}", "give budget as a positive integer (4-subsets per new pair)")
+    if not isinstance(pool_size, int | np.integer) or pool_size < 3:
+        raise DataError(
+            f"pool_size = {pool_size!r}; a rigid fit needs 3 pairs", "use pool_size >= 3 (paper: 4)"
+        )
+    if n < pool_size:
+        raise DataError(
+            f"{n} pairs but pool_size = {pool_size}; Algorithm 1 starts from pool_size pairs",
+            "collect more robot poses or lower pool_size",
+        )
+
+
+def _published_step(s: _State, nxt: int, sc: _Scorer, inner: str, events: list[str]) -> _State:
+    """Steps 6-15 for the new pair ``nxt``: single replacements of the pool's slots."""
+    k = len(s.pool)
+    if inner == "best":
+        cand = np.array([s.pool[:i] + [nxt] + s.pool[i + 1 :] for i in range(k)])
+        c = sc.best_of(cand, nxt + 1)
+        if c.cost < s.cost:
+            events.append(f"pair {nxt} replaced slot {c.pool.index(nxt)}: cost {c.cost:.3g}")
+            return c
+        return s
+    for i in range(k):  # steps 6-15 as listed
+        c = sc.best_of(np.array([s.pool[:i] + [nxt] + s.pool[i + 1 :]]), nxt + 1)
+        if c.cost < s.cost:  # step 9's test, else step 10 undoes the replacement
+            s = c
+            events.append(f"pair {nxt} replaced slot {i}: cost {s.cost:.3g}")
+    return s
+
+
+def _subsets_with(nxt: int, k: int, budget: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to ``budget`` k-subsets of pairs 0..nxt that contain ``nxt``: all of them while there are at
+    most ``budget``, else ``budget`` seeded random draws (duplicates dropped)."""
+    if comb(nxt, k - 1) <= budget:
+        others = np.array(list(combinations(range(nxt), k - 1)), int).reshape(-1, k - 1)
+    else:
+        others = np.unique(np.sort(np.argsort(rng.random((budget, nxt)), 1)[:, : k - 1], 1), axis=0)
+    return np.column_stack([others, np.full(len(others), nxt)])
+
+
+#: the wide search skips subsets with s2/s1 below this (near-collinear: rotation about the line free)
+MIN_SPREAD = 0.05
+
+
+def _spread(P: np.ndarray) -> np.ndarray:
+    """s2/s1 of the centred points of each subset (m, k, 3): ~0 for collinear subsets."""
+    s = np.linalg.svd(P - P.mean(1, keepdims=True), compute_uv=False)
+    return s[:, 1] / np.maximum(s[:, 0], 1e-300)
+
+
+def _wide_step(
+    best: _State, nxt: int, sc: _Scorer, budget: int, rng: np.random.Generator, events: list[str]
+) -> _State:
+    """The best of the four replacements of ``best`` and the subsets of :func:`_subsets_with`."""
+    k = len(best.pool)
+    repl = [best.pool[:i] + [nxt] + best.pool[i + 1 :] for i in range(k)]
+    cand = np.unique(np.sort(np.vstack([repl, _subsets_with(nxt, k, budget, rng)]), 1), axis=0)
+    cand = cand[_spread(sc.dst[cand]) >= MIN_SPREAD]
+    if not len(cand):
+        return best
+    c = sc.best_of(cand, nxt + 1)
+    if c.cost < best.cost:
+        events.append(f"pair {nxt}: wide search took pool {c.pool}: cost {c.cost:.3g}")
+        return c
+    return best
 
 
 def iterative_pool(
@@ -47,6 +170,9 @@ def iterative_pool(
     inner: Literal["best", "sequential"] = "best",
     refit: float | None = None,
     refit_floor: float = 0.0,
+    search: Literal["published", "wide"] = "published",
+    budget: int = 64,
+    seed: int | np.random.Generator | None = 0,
 ) -> PoolResult:
     """Run Algorithm 1 over pairs ``src[i] -> dst[i]`` in the order given (the collection order).
 
@@ -61,73 +187,60 @@ def iterative_pool(
     replacement kept before the next slot is tried, so the new pair can end up in several slots
     (the pool then holds fewer than four distinct pairs, weighting the new one more).
 
+    ``search="wide"`` (an improvement, not in the paper): per new pair also up to ``budget``
+    pool-size subsets containing it (exhaustive while few enough, else random from ``seed``) and the
+    replacements of the best pool so far are verified (near-collinear ones skipped); the published
+    pool runs alongside, so the returned cost is never above the published loop's. Verifier calls
+    per new pair ≤ ``budget`` + 2·``pool_size`` (+2 with ``verifier_sees_count``).
+
     ``refit`` (an improvement, not in the paper): after the loop, the residuals of every pair seen under
     Ĥ_optimal give a robust σ = 1.4826·sqrt(median r²); pairs with r <= max(refit·σ, refit_floor)
     are refitted together by eqs. 10-12 (``H_refit``), twice. The pool then acts as a RANSAC
     hypothesis chosen by the verifier, and the final transform averages the noise of all consistent
     pairs instead of four (§3.1 study in docs/methods/hand-eye.md).
     """
-    if inner not in ("best", "sequential"):
-        raise DataError(f"unknown inner loop '{inner}'", "use inner='best' or inner='sequential'")
     src = np.asarray(src, float).reshape(-1, 3)
     dst = np.asarray(dst, float).reshape(-1, 3)
     n = len(src)
-    if n < pool_size:
-        raise DataError(f"{n} pairs; Algorithm 1 starts from {pool_size}", "collect more robot poses")
-
-    def verify(H: np.ndarray, seen: int):
-        return verifier(H, seen) if verifier_sees_count else verifier(H)
-
-    pool = list(range(pool_size))
-    H = rigid_fit_batch(src[None, pool], dst[None, pool])[0]
-    e = verify(H, pool_size)
-    best = cost(e)
-    history = [np.inf] * (pool_size - 1) + [best]
-    H_hist = [np.full((4, 4), np.nan)] * (pool_size - 1) + [H]
+    _check_args(n, pool_size, inner, search, budget)
+    rng = np.random.default_rng(seed)
+    sc = _Scorer(src, dst, verifier, cost, verifier_sees_count)
+    pub = best = sc.best_of(np.arange(pool_size)[None], pool_size)
+    history = [np.inf] * (pool_size - 1) + [best.cost]
+    H_hist = [np.full((4, 4), np.nan)] * (pool_size - 1) + [best.H]
     k = 0
     nxt = pool_size
     events: list[str] = []
-    while best > e_required and k <= k_max and nxt < n:
-        if verifier_sees_count and np.isfinite(best):
-            best = cost(e := verify(H, nxt + 1))  # the reference moved with the new data
-        if inner == "best":
-            cand = np.array([pool[:i] + [nxt] + pool[i + 1 :] for i in range(pool_size)])
-            Hs = rigid_fit_batch(src[cand], dst[cand])
-            es = [verify(Hc, nxt + 1) for Hc in Hs]
-            costs = np.array([cost(ec) for ec in es])
-            i = int(np.argmin(costs))
-            if costs[i] < best:
-                pool = list(cand[i])
-                H, e, best = Hs[i], es[i], float(costs[i])
-                events.append(f"pair {nxt} replaced slot {i}: cost {best:.3g}")
+    while best.cost > e_required and k <= k_max and nxt < n:
+        if verifier_sees_count and np.isfinite(best.cost):
+            pub = sc.rescore(pub, nxt + 1)
+            best = pub if best.pool == pub.pool else sc.rescore(best, nxt + 1)
+        pub = _published_step(pub, nxt, sc, inner, events)
+        if search == "wide":
+            best = min(best, pub, _wide_step(best, nxt, sc, budget, rng, events), key=lambda s: s.cost)
         else:
-            for i in range(pool_size):  # steps 6-15 as listed
-                trial = pool[:i] + [nxt] + pool[i + 1 :]
-                Hc = rigid_fit_batch(src[None, trial], dst[None, trial])[0]
-                ec = verify(Hc, nxt + 1)
-                if cost(ec) < best:  # step 9's test, else step 10 undoes the replacement
-                    pool, H, e, best = trial, Hc, ec, cost(ec)
-                    events.append(f"pair {nxt} replaced slot {i}: cost {best:.3g}")
-        history.append(best)
-        H_hist.append(H)
+            best = pub
+        history.append(best.cost)
+        H_hist.append(best.H)
         nxt += 1
         k += 1
     H_refit = refit_idx = None
     if refit is not None:
-        H_refit, refit_idx = _consensus_refit(H, src[:nxt], dst[:nxt], refit, refit_floor)
+        H_refit, refit_idx = _consensus_refit(best.H, src[:nxt], dst[:nxt], refit, refit_floor)
     return PoolResult(
-        H=H,
-        e=e,
-        cost=best,
-        pool=[int(p) for p in pool],
+        H=best.H,
+        e=best.e,
+        cost=best.cost,
+        pool=best.pool,
         history=np.asarray(history),
         H_history=np.asarray(H_hist),
         n_used=nxt,
-        converged=bool(best <= e_required),
-        H_compensated=None if e is None else compensate(H, e),
+        converged=bool(best.cost <= e_required),
+        H_compensated=None if best.e is None else compensate(best.H, best.e),
         events=events,
         H_refit=H_refit,
         refit_inliers=refit_idx,
+        n_verified=sc.calls,
     )
 
 

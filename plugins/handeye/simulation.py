@@ -20,6 +20,8 @@ from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from weldcell.plugins.handeye.flange_model import iso9409_model
+from weldcell.plugins.handeye.verification import IcpVerifier
 from weldcell.sdk.geometry import invert
 
 #: eq. 19, as printed (the rpy [3.1415, 0, -1.57] of the text rounded to this exact matrix)
@@ -152,3 +154,57 @@ def render_flange_scan(
         h = rng.uniform(0.02, 0.12, 6000)
         parts.append(c - h[:, None] * z + 0.037 * (np.cos(th)[:, None] * u + np.sin(th)[:, None] * v))
     return np.vstack(parts)
+
+
+def _pair_jacobian(p_cam: np.ndarray) -> np.ndarray:
+    """``J_i = [I, -[q_i]×]`` (n, 3, 6): d(e·q_i)/dξ at ξ = (δt, δθ) = 0."""
+    q = np.asarray(p_cam, float).reshape(-1, 3)
+    skew = np.zeros((len(q), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -q[:, 2], q[:, 1], -q[:, 0]
+    skew -= skew.transpose(0, 2, 1)
+    return np.concatenate([np.broadcast_to(np.eye(3), skew.shape), -skew], axis=2)
+
+
+def pairs_crlb(p_cam: np.ndarray, sigma: float) -> np.ndarray:
+    """Cramér–Rao bound (6, 6) on the covariance of ξ = (δt, δθ) of ``e = inv(Ĥ) @ H_true`` for any
+    unbiased estimate from point pairs alone: ``p_cam`` (n, 3) the true camera points, each measured
+    with N(0, σ²I) (eq. 20), robot side exact. To first order the pairs see ``e·q ≈ q + δt - [q]×δθ``,
+    so the Fisher information is ``Σ J_iᵀJ_i / σ²``."""
+    J = _pair_jacobian(p_cam)
+    return np.linalg.inv(np.einsum("nki,nkj->ij", J, J) / sigma**2)
+
+
+def crlb_workspace_rms(cov: np.ndarray, points: np.ndarray) -> float:
+    """``sqrt(E[rms²])`` (m) of :func:`workspace_error` over ``points`` (n, 3, camera frame) for an
+    error ξ = (δt, δθ) with covariance ``cov`` (e.g. :func:`pairs_crlb`), to first order."""
+    J = _pair_jacobian(points)
+    return float(np.sqrt(np.mean(np.einsum("nki,ij,nkj->n", J, cov, J))))
+
+
+def verification_pose(cell: SimCell, center: tuple[float, float, float] = PAPER_GRID_CENTER) -> np.ndarray:
+    """``T_base_flange_v``: the flange at ``center`` facing the camera square on (Algorithm 1's
+    verification pose, "where the robot arm will mostly work around", §2.1.4)."""
+    face = Rotation.from_matrix(cell.T_base_camera[:3, :3]) * Rotation.from_euler("x", np.pi)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = face.as_matrix(), center
+    return T
+
+
+def scan_verifier(
+    cell: SimCell,
+    sigma: float,
+    rng: np.random.Generator | int | None = 0,
+    d1_mm: float = 50.0,
+    model_spacing: float = 0.0015,
+    scan_spacing: float = 0.0007,
+) -> IcpVerifier:
+    """The realistic eq. 13 verifier of a simulated cell: an ISO 9409-1 flange (``d1_mm``) scanned at
+    :func:`verification_pose` with N(0, σ) on every point (``scan_spacing`` grid, ~5600 points for
+    d1 = 50 mm), registered by :class:`~weldcell.plugins.handeye.verification.IcpVerifier` with a model
+    sampled on a different grid (``model_spacing``, ~1200 points); the ICP gates widen with σ
+    (correspondences within 5 mm + 3σ, RMSE up to 2 mm + 3σ)."""
+    T_bf = verification_pose(cell)
+    T_cf = invert(cell.T_base_camera) @ T_bf
+    scan = render_flange_scan(T_cf, iso9409_model(d1_mm, spacing=scan_spacing), sigma=sigma, rng=rng)
+    model = iso9409_model(d1_mm, spacing=model_spacing)
+    return IcpVerifier(model, T_bf, scan, max_distance=0.005 + 3 * sigma, max_rmse=0.002 + 3 * sigma)

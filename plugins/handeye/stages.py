@@ -108,6 +108,12 @@ class FlangeSettings(Settings):
         "0 (use every pair) with the consensus verifier, whose cost is ~0 on the first pairs",
     )
     pool_k_max: int = Field(10_000, ge=0, description="Algorithm 1 iteration limit k_max")
+    pool_search: Literal["published", "wide"] = Field(
+        "published",
+        description="Algorithm 1's pool search (offline solve): 'published' (the paper's loop) or 'wide' "
+        "(also pool_budget 4-subsets with each new pair; docs/methods/hand-eye.md §3.1)",
+    )
+    pool_budget: int = Field(64, gt=0, description="'wide' pool search: 4-subsets tried per new pair")
     compensate: bool = Field(False, description="apply eq. 21 (H @ e_optimal) to Algorithm 1's result")
 
 
@@ -378,6 +384,8 @@ class FlangeHandEye:
             "work_radius": self.s.work_radius,
             "e_required": self.e_required,
             "k_max": self.s.pool_k_max,
+            "search": self.s.pool_search,
+            "budget": self.s.pool_budget,
             "compensate": self.s.compensate,
             "bootstrap": self.s.bootstrap,
         }

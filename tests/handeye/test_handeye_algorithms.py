@@ -10,7 +10,14 @@ from weldcell.plugins.handeye.pointfit import robust_point_fit, scaled_svd_fit
 from weldcell.plugins.handeye.result import HandEyeSample
 from weldcell.plugins.handeye.segmentation import segment_flange
 from weldcell.plugins.handeye.simulation import PAPER_T_BASE_CAMERA, render_flange_scan, simulate_cell
-from weldcell.plugins.handeye.verification import GroundTruthVerifier, IcpVerifier, compensate
+from weldcell.plugins.handeye.verification import (
+    ConsensusVerifier,
+    GroundTruthVerifier,
+    IcpVerifier,
+    compensate,
+    error_components,
+)
+from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rpy, invert, pose_error, transform_points
 
 
@@ -306,3 +313,141 @@ def test_resolve_translation_option():
         X1, _ = solve(G, C, "eye-in-hand", method, "numpy", resolve_translation=True)
         assert np.allclose(X0[:3, :3], X1[:3, :3])
         assert (np.abs(X0[:3, 3] - X1[:3, 3]).max() > 1e-6) == changes, method
+
+
+def _pool_data(n=30, seed=0, sigma=0.001):
+    cell = simulate_cell(n_poses=n, rng=seed)
+    c = cell.noisy_p_cam(sigma, np.random.default_rng(seed))
+    if n > 17:
+        c[[6, 17]] += [[0.02, 0.0, 0.0], [0.0, 0.0, -0.015]]  # two false segmentations
+    return cell, c
+
+
+class _Counting:
+    """A verifier wrapper recording how many calls each number of pairs seen received."""
+
+    def __init__(self, verifier):
+        self.verifier, self.calls = verifier, []
+
+    def __call__(self, H, n_seen):
+        self.calls.append(n_seen)
+        return self.verifier(H, n_seen) if isinstance(self.verifier, ConsensusVerifier) else self.verifier(H)
+
+
+def test_wide_search_never_costs_more_than_the_published_loop():
+    for seed in range(3):
+        cell, c = _pool_data(seed=seed)
+        for verifier, sees in (
+            (GroundTruthVerifier(cell.T_base_camera), False),
+            (ConsensusVerifier(c, cell.p_base), True),
+        ):
+            pub = iterative_pool(c, cell.p_base, verifier, verifier_sees_count=sees)
+            wide = iterative_pool(
+                c, cell.p_base, verifier, verifier_sees_count=sees, search="wide", budget=8, seed=seed
+            )
+            assert np.all(wide.history[3:] <= pub.history[3:] + 1e-15), (
+                seed
+            )  # after every pair, not only at the end
+            assert wide.cost <= pub.cost and not set(wide.pool) & {6, 17}
+    # with the oracle the extra subsets pay off: a lower δt than the published greedy path finds
+    cell, c = _pool_data(n=75, seed=4)
+    oracle = GroundTruthVerifier(cell.T_base_camera)
+    assert (
+        iterative_pool(c, cell.p_base, oracle, search="wide", budget=64).cost
+        < 0.6 * iterative_pool(c, cell.p_base, oracle).cost
+    )
+
+
+def test_calibrate_passes_the_pool_search_through():
+    """calibrate(method="flange-iterative", search="wide") runs the wide search (more verifier work,
+    same false segmentations kept out) and a bad search name is one clear error."""
+    cell, c = _pool_data(seed=2)
+    samples = [HandEyeSample(T_base_flange=T, p_cam=p) for T, p in zip(cell.T_base_flange, c, strict=True)]
+    pub = calibrate(samples, "eye-on-base", "flange-iterative", bootstrap=0)
+    wide = calibrate(samples, "eye-on-base", "flange-iterative", bootstrap=0, search="wide", budget=8)
+    assert wide.metrics["cost"] <= pub.metrics["cost"] and not set(wide.metrics["pool"]) & {6, 17}
+    with pytest.raises(DataError, match="search"):
+        calibrate(samples, "eye-on-base", "flange-iterative", bootstrap=0, search="widest")
+
+
+def test_wide_search_respects_budget_and_is_exhaustive_when_it_can_be():
+    from itertools import combinations
+
+    from weldcell.plugins.handeye.pointfit import rigid_fit_batch
+
+    cell, c = _pool_data(n=40, seed=1)
+    counter = _Counting(GroundTruthVerifier(cell.T_base_camera))
+    pr = iterative_pool(c, cell.p_base, counter, verifier_sees_count=True, search="wide", budget=10, seed=3)
+    per_pair = np.bincount(counter.calls)[5:]  # calls while pair n_seen - 1 was the new one
+    # budget + the replacements of the published and of the best pool + 2 re-verifications
+    assert len(counter.calls) == pr.n_verified and per_pair.max() <= 10 + 2 * 4 + 2 and per_pair.min() > 4
+    # a budget covering every subset: the wide search finds the best 4-subset of all pairs
+    cell, c = _pool_data(n=9, seed=2)
+    oracle = GroundTruthVerifier(cell.T_base_camera)
+    pr = iterative_pool(c, cell.p_base, oracle, search="wide", budget=100)
+    subsets = np.array(list(combinations(range(9), 4)))
+    costs = [np.linalg.norm(oracle(H)[:3, 3]) for H in rigid_fit_batch(c[subsets], cell.p_base[subsets])]
+    assert sorted(pr.pool) == list(subsets[int(np.argmin(costs))]) and pr.cost == pytest.approx(min(costs))
+
+
+def test_wide_search_is_reproducible_and_checks_its_arguments():
+    cell, c = _pool_data(n=50, seed=5)
+    oracle = GroundTruthVerifier(cell.T_base_camera)
+    a, b = (iterative_pool(c, cell.p_base, oracle, search="wide", budget=8, seed=11) for _ in range(2))
+    g = iterative_pool(c, cell.p_base, oracle, search="wide", budget=8, seed=np.random.default_rng(11))
+    assert a.pool == b.pool == g.pool and np.array_equal(a.history, b.history) and np.array_equal(a.H, g.H)
+    for budget in (0, -3, 2.5, True):
+        with pytest.raises(DataError, match="budget"):
+            iterative_pool(c, cell.p_base, oracle, search="wide", budget=budget)
+    with pytest.raises(DataError, match="pool_size"):
+        iterative_pool(c[:5], cell.p_base[:5], oracle, pool_size=6)
+    with pytest.raises(DataError, match="search"):
+        iterative_pool(c, cell.p_base, oracle, search="everything")
+
+
+def test_pairs_crlb_is_what_the_all_data_fit_attains():
+    from weldcell.plugins.handeye.simulation import crlb_workspace_rms, pairs_crlb
+
+    cell = simulate_cell(rng=0)
+    cov = pairs_crlb(cell.p_cam_true, 0.001)
+    rng = np.random.default_rng(1)
+    E = np.array(
+        [
+            invert(scaled_svd_fit(cell.noisy_p_cam(0.001, rng), cell.p_base).T) @ cell.T_base_camera
+            for _ in range(400)
+        ]
+    )
+    assert np.allclose(E[:, :3, 3].std(0), np.sqrt(np.diag(cov)[:3]), rtol=0.12)  # LS is efficient
+    # in the work volume (the fit's own points) the bound is sqrt(6 / n) σ: 6 parameters from n points
+    assert crlb_workspace_rms(cov, cell.p_cam_true) == pytest.approx(np.sqrt(6 / 75) * 0.001, rel=1e-9)
+
+
+def test_scan_verifier_measures_an_estimate_against_a_noisy_verification_scan():
+    from weldcell.plugins.handeye.simulation import scan_verifier
+
+    cell = simulate_cell(rng=0)
+    v = scan_verifier(cell, 0.0002, rng=1)
+    planted = T_from_rpy([0.002, -0.001, 0.0], [0.004, -0.002, 0.001])
+    H = cell.T_base_camera @ invert(planted)
+    left = error_components(invert(compensate(H, v(H))) @ cell.T_base_camera)
+    # 4.6 mm and 2.2 mrad of tilt planted -> < 1 mm and < 1 mrad left (yaw about the flange axis
+    # is barely observable from the near-symmetric flange: not asserted, see docs/methods/hand-eye.md)
+    assert np.linalg.norm([left["dx"], left["dy"], left["dz"]]) < 0.001
+    assert abs(left["droll"]) < 0.001 and abs(left["dpitch"]) < 0.001
+
+
+def test_consensus_verifier_does_not_let_the_pool_verify_itself():
+    """With e_required = 0 (the calibrate() default) Algorithm 1 must not stop after four pairs
+    because the consensus of the pool's own four pairs reproduces its fit (e = I, cost 0)."""
+    from weldcell.plugins.handeye.pointfit import rigid_fit_batch
+
+    rng = np.random.default_rng(9001)  # a run of the §3.1 outlier study that used to stop at 4 pairs
+    cell = simulate_cell(rng=rng)
+    c = cell.noisy_p_cam(0.001, rng)
+    bad = rng.choice(75, 3, replace=False)
+    d = rng.normal(size=(3, 3))
+    c[bad] += d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0.01, 0.03, (3, 1))
+    cv = ConsensusVerifier(c, cell.p_base)
+    assert cv(rigid_fit_batch(c[None, :4], cell.p_base[None, :4])[0], 4) is None  # nothing to check it with
+    pr = iterative_pool(c, cell.p_base, cv, verifier_sees_count=True)
+    assert pr.n_used == 75 and pr.cost > 0 and not set(pr.pool) & set(bad)
