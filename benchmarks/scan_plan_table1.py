@@ -1,7 +1,7 @@
 """Paper 000, Table I: pose accuracy (eq. 22) of the planned weld path on the cylinder-on-plate and the
 Y-shaped pipe, in the simulated cell.
 
-Run:  /work/venv/bin/python benchmarks/scan_plan_table1.py [--seeds 3] [--views 8]
+Run:  .venv/bin/python benchmarks/scan_plan_table1.py [--seeds 3] [--views 8]
 
 For each workpiece and seed: a RealSense D415 (full 1280x720, Intel's stereo noise model with grazing
 noise, dropouts and stereo shadows) captures ``--views`` clouds from a ring of poses around the part

@@ -6,7 +6,7 @@ rasterised F1 of eq. 21 (``metrics.seam_f1``) for a range of thresholds t, befor
 bilateral filter (eqs. 9-10); the final seam polylines are scored too, with their accuracy against
 the true line and the run time of ``extract_seams``.
 
-    /work/venv/bin/python benchmarks/seam_threshold_sweep.py [--noise 0.0004] [--seeds 2]
+    .venv/bin/python benchmarks/seam_threshold_sweep.py [--noise 0.0004] [--seeds 2]
 """
 
 from __future__ import annotations

@@ -53,6 +53,9 @@ LABEL_NAMES = {
     WEAK: "weak",
 }
 WELDABLE = {"concave": CONCAVE, "groove": GROOVE}
+#: smallest included angle of a weldable crease: sides that face each other more closely are the two faces
+#: of a thin sheet or a scan border whose normals flipped, not a groove a torch (or a camera) can see into
+MIN_INCLUDED_ANGLE = np.deg2rad(25.0)
 
 
 @dataclass
@@ -381,10 +384,15 @@ def _sides_at(
     dist, idx = tree.query(X, k=k, workers=-1) if query is None else query
     valid = dist <= radius
     valid[:, :4] = True
-    Nt = np.ascontiguousarray(N.T)
-    na, nb_, in_a = _two_sides(tuple(Nt[j][idx] for j in range(3)), valid)
-    Pt = np.ascontiguousarray(P.T)
-    Q = tuple(Pt[j][idx] - X[:, j : j + 1] for j in range(3))
+    if idx.size < len(P):  # a few nodes (e.g. one step of a trace): gather rows, don't transpose the cloud
+        Ng, Pg = N[idx], P[idx]
+        Nc = tuple(np.ascontiguousarray(Ng[..., j]) for j in range(3))
+        Q = tuple(Pg[..., j] - X[:, j : j + 1] for j in range(3))
+    else:  # per-coordinate gathers from transposed copies (4x faster than (B, K, 3) gathers)
+        Nt, Pt = np.ascontiguousarray(N.T), np.ascontiguousarray(P.T)
+        Nc = tuple(Nt[j][idx] for j in range(3))
+        Q = tuple(Pt[j][idx] - X[:, j : j + 1] for j in range(3))
+    na, nb_, in_a = _two_sides(Nc, valid)
     return idx, valid, na, nb_, in_a, Q
 
 
@@ -402,6 +410,7 @@ def classify_edges(
     min_side_fraction: float = 0.2,
     viewpoints: np.ndarray | None = None,
     max_incidence: float = np.deg2rad(75.0),
+    min_included_angle: float = MIN_INCLUDED_ANGLE,
 ):
     """Class of each candidate edge point (indices ``cand``) from its neighbourhood within ``radius``.
 
@@ -416,6 +425,9 @@ def classify_edges(
       noisy border of a scan seen at grazing incidence looks like a narrow V): each side holds at least
       ``min_side_fraction`` of the neighbours, and, when the camera positions ``viewpoints`` (V, 3) are
       given, each side's normal faces some camera at an incidence below ``max_incidence``;
+    * a "crease" whose sides face each other within ``min_included_angle`` (included angle below it) is a
+      ``boundary`` too: a surface folded onto itself, i.e. the two faces of a thin sheet or a scan border
+      whose normals flipped (a rim seen at grazing incidence), not a gap a torch can reach;
     * concave creases whose included angle (pi - angle(n_a, n_b)) is below ``groove_max_angle`` are
       ``groove`` (butt V-grooves), the others ``concave`` (fillet, lap, corner roots).
 
@@ -456,6 +468,7 @@ def classify_edges(
         seen_a = (np.einsum("bvj,bj->bv", view, na) >= cos_min).any(axis=1)
         seen_b = (np.einsum("bvj,bj->bv", view, nbv) >= cos_min).any(axis=1)
         one_sided |= ~(seen_a & seen_b)
+    one_sided |= np.pi - crease < min_included_angle  # folded onto itself: no torch fits in
     labels[concave & one_sided] = BOUNDARY
     concave &= ~one_sided
     labels[concave] = np.where(np.pi - crease[concave] < groove_max_angle, GROOVE, CONCAVE)
@@ -531,19 +544,27 @@ def _refine_on_sides(
     k: int = 256,
     min_side_fraction: float = 0.2,
     query: tuple[np.ndarray, np.ndarray] | None = None,
+    min_included_angle: float = MIN_INCLUDED_ANGLE,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Snap seam nodes onto the intersection line of the two side planes fitted around them.
 
     The planes are fitted to the (at most ``k`` nearest) cloud points within ``radius`` of each node.
     Returns the moved nodes, the approach ``-(n_a + n_b)/|.|`` of the fitted planes, a mask of the
     nodes where the fit was usable and the angle between the two plane normals (pi minus the included
-    angle of the joint). Usable: the crease angle is at least ``min_crease_angle`` and both sides hold
-    at least ``min_side_fraction`` of the points (a real joint has surface on both sides; the curled,
-    noisy border of a scan has a few points only on its "second side")."""
+    angle of the joint). Usable: the crease angle is at least
+    ``min_crease_angle``, the included angle at least ``min_included_angle``, the points of each side lie
+    in front of the other side's plane (concave) and both sides hold at least ``min_side_fraction`` of
+    the points (a real joint has surface on both sides; the curled, noisy border of a scan has a few
+    points only on its "second side")."""
     _, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
     na, da, nbv, db, ca, cb = _fit_two_planes(Q, valid, na, nbv, in_a)  # planes n . (x - X) = d
+    crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
     ok = (ca >= 3) & (cb >= 3) & (np.minimum(ca, cb) >= min_side_fraction * (ca + cb))
-    ok &= np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1, 1)) >= min_crease_angle
+    ok &= (crease >= min_crease_angle) & (np.pi - crease >= min_included_angle)
+    ra, rb = _dot3(Q, na) - da[:, None], _dot3(Q, nbv) - db[:, None]
+    on_a = valid & (np.abs(ra) <= np.abs(rb))
+    on_b = valid & ~on_a
+    ok &= _mean_where(rb, on_a) + _mean_where(ra, on_b) > 0  # concave: the air is inside the V
     A = np.stack([na, nbv], axis=1)  # (B, 2, 3)
     r = np.stack([-da, -db], axis=1)  # signed distances of X from the two planes
     AAt = np.einsum("bij,bkj->bik", A, A)
@@ -553,8 +574,12 @@ def _refine_on_sides(
     step[~ok] = 0.0
     too_far = np.linalg.norm(step, axis=1) > radius
     step[too_far] = 0.0
-    crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
     return X - step, -_unit(na + nbv), ok & ~too_far, crease
+
+
+def _mean_where(v: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Row means (B,) of ``v`` (B, K) over ``mask`` (0 where a row has no member)."""
+    return np.where(mask, v, 0.0).sum(1) / np.maximum(mask.sum(1), 1)
 
 
 def _trim_turning_ends(X: np.ndarray, max_turn: float = np.deg2rad(30.0), max_nodes: int = 8) -> slice:
@@ -616,7 +641,8 @@ def _refine_nodes(
     bisector of two planes fitted to a curved wall is still the local one), the position from those
     within ``side_radius`` where that fit is usable too (small: planes fitted to a strongly curved wall
     over a large radius sit inside it and pull the intersection line inwards)."""
-    query = tree.query(X, k=int(min(256, len(P))), workers=-1)  # one search for both scales
+    workers = -1 if len(X) >= 64 else 1  # threads cost more than they save on a few nodes (a trace step)
+    query = tree.query(X, k=int(min(256, len(P))), workers=workers)  # one search for both scales
     X2, A, ok, crease = _refine_on_sides(P, N, tree, X, approach_radius, min_crease_angle, query=query)
     if approach_radius > side_radius:
         Xs, _, ok_s, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle, query=query)
@@ -934,6 +960,214 @@ def bridge_pieces(
     return out
 
 
+@dataclass(frozen=True)
+class _Tracer:
+    """The cloud and the settings of :func:`grow_pieces` (one object instead of a dozen arguments)."""
+
+    P: np.ndarray
+    N: np.ndarray
+    tree: cKDTree
+    spacing: float
+    eps: float
+    side_radius: float
+    approach_radius: float
+    min_crease_angle: float
+    max_steps: int
+    max_turn: float
+    max_approach_turn: float
+    max_join_angle: float
+
+
+def grow_pieces(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    pieces: list[_Piece],
+    *,
+    spacing: float,
+    eps: float,
+    side_radius: float,
+    approach_radius: float,
+    min_crease_angle: float,
+    max_length: float,
+    max_turn: float = np.deg2rad(30.0),
+    max_approach_turn: float = np.deg2rad(20.0),
+    max_join_angle: float = np.deg2rad(45.0),
+) -> list[_Piece]:
+    """Extend every open piece at both ends by tracing its joint (seam tracking on the cloud), and join
+    the pieces the traces run into.
+
+    Where a shallow crease (e.g. the flanks of a pipe junction, ~145 deg included angle) gives too few
+    eq. 16 edge points, a seam is found in pieces. From each open end, nodes are placed ``spacing``
+    further along the end direction and snapped onto the two side planes (:func:`_refine_nodes`); a node
+    is accepted while the fit is a concave crease of at least ``min_crease_angle`` with surface on both
+    sides (:func:`_refine_on_sides`), the cloud continues around it (its neighbours within
+    ``side_radius`` are not all behind it: the part or the scan ends there), the step turns by less
+    than ``max_turn`` and the approach by less than ``max_approach_turn``, at most ``max_length`` (m)
+    per end. A trace that comes within ``eps`` of another piece's end (approaches within
+    ``max_join_angle``) joins that piece; one that reaches its own piece's other end closes it into a
+    loop; one that meets any other node stops. Closed pieces are returned unchanged.
+    """
+    max_steps = int(max_length / spacing)
+    if max_steps < 1:
+        return pieces
+    tr = _Tracer(
+        P,
+        N,
+        tree,
+        spacing,
+        eps,
+        side_radius,
+        approach_radius,
+        min_crease_angle,
+        max_steps,
+        max_turn,
+        max_approach_turn,
+        max_join_angle,
+    )
+    out = [_with_fit(p) for p in pieces]
+    todo = [(i, e) for i, p in enumerate(out) if not p.closed for e in (0, 1)]
+    while todo:
+        i, e = todo.pop(0)
+        j = _grow_end(tr, out, i, e)
+        if j is not None:  # out[-1] is piece i (traced end last) + piece j: both new ends are traced again
+            keep = [k for k in range(len(out) - 1) if k not in (i, j)]
+            renumber = {k: n for n, k in enumerate(keep)}
+            out = [out[k] for k in keep] + [out[-1]]
+            todo = [(renumber[k], f) for k, f in todo if k in renumber] + [
+                (len(out) - 1, 0),
+                (len(out) - 1, 1),
+            ]
+    return out
+
+
+def _with_fit(p: _Piece) -> _Piece:
+    """``p`` with its ``ok`` / ``crease`` arrays filled in (all usable / 0 where not refined)."""
+    ok = p.ok if p.ok is not None else np.ones(len(p.X), dtype=bool)
+    crease = p.crease if p.crease is not None else np.zeros(len(p.X))
+    return _Piece(p.X, p.A, p.closed, p.labels, ok, crease)
+
+
+def _sub(p: _Piece, sl: slice, closed: bool | None = None) -> _Piece:
+    """The nodes ``sl`` of ``p`` (reversed order with a negative step), optionally re-flagged closed."""
+    return _Piece(p.X[sl], p.A[sl], p.closed if closed is None else closed, p.labels, p.ok[sl], p.crease[sl])
+
+
+def _concat(a: _Piece, b: _Piece) -> _Piece:
+    """The open run of ``a``'s nodes followed by ``b``'s."""
+    return _Piece(
+        np.vstack([a.X, b.X]),
+        np.vstack([a.A, b.A]),
+        False,
+        a.labels + b.labels,
+        np.concatenate([a.ok, b.ok]),
+        np.concatenate([a.crease, b.crease]),
+    )
+
+
+def _blocking_nodes(out: list[_Piece], i: int, X: np.ndarray, end_len: float) -> tuple[np.ndarray, ...]:
+    """Nodes a trace from the end of ``X`` (piece ``i``, traced end last) must stop at: every other
+    piece's, and ``X``'s own beyond ``end_len`` of its end. Returns (owner, index, points)."""
+    owner, index, nodes = [], [], []
+    for j, p in enumerate(out):
+        Xj = X if j == i else p.X
+        sel = np.arange(len(Xj))
+        if j == i:
+            sel = sel[np.linalg.norm(Xj - Xj[-1], axis=1) >= end_len]
+        owner.append(np.full(len(sel), j))
+        index.append(sel)
+        nodes.append(Xj[sel])
+    return np.concatenate(owner), np.concatenate(index), np.vstack(nodes)
+
+
+def _grow_end(tr: _Tracer, out: list[_Piece], i: int, e: int) -> int | None:
+    """Trace end ``e`` (0 start, 1 end) of ``out[i]`` (:func:`grow_pieces`) and store the longer piece
+    in ``out[i]`` (closed when the trace reached its own other end). When the trace ran into the end of
+    piece j, the join (piece i, traced end last, then piece j) is appended to ``out`` and j returned."""
+    piece = out[i] if e == 1 else _sub(out[i], slice(None, None, -1))
+    end_len = 3.0 * tr.eps
+    owner, index, nodes = _blocking_nodes(out, i, piece.X, end_len)
+    grown, A, crease, hit = _trace_joint(tr, piece.X, piece.A, nodes)
+    if len(grown):
+        n = len(grown)
+        piece = _concat(
+            piece, _Piece(grown, A, False, np.zeros(6, dtype=np.int64), np.ones(n, dtype=bool), crease)
+        )
+    joined = None
+    if hit >= 0:
+        j, k = int(owner[hit]), int(index[hit])
+        other = piece if j == i else out[j]
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(other.X, axis=0), axis=1))])
+        d_end = _unit(piece.X[-1] - piece.X[-3])
+        if j == i and s[k] <= end_len:  # reached its own other end: a loop, without overlap where it closes
+            piece = _sub(piece, slice(_first_ahead(piece.X[: k + 1], piece.X[-1], d_end), None), closed=True)
+        elif j != i and min(s[k], s[-1] - s[k]) <= end_len:
+            tail = (
+                other if s[k] <= s[-1] - s[k] else _sub(other, slice(None, None, -1))
+            )  # end it ran into first
+            a_end, a_tail = _unit(piece.A[-3:].mean(axis=0)), _unit(tail.A[:3].mean(axis=0))
+            if float(a_end @ a_tail) >= np.cos(tr.max_join_angle):
+                n_end = int(np.sum(np.linalg.norm(tail.X - tail.X[0], axis=1) <= end_len + tr.eps))
+                start = _first_ahead(tail.X[:n_end], piece.X[-1], d_end)  # its nodes behind the trace: off
+                joined = (j, _sub(tail, slice(start, None)))
+    out[i] = piece if e == 1 else _sub(piece, slice(None, None, -1))
+    if joined is None:
+        return None
+    out.append(_concat(piece, joined[1]))
+    return joined[0]
+
+
+def _first_ahead(X: np.ndarray, end: np.ndarray, d: np.ndarray) -> int:
+    """Index of the first node of ``X`` lying ahead of ``end`` along ``d`` (len(X) when none does)."""
+    ahead = np.flatnonzero((X - end) @ d > 0)
+    return int(ahead[0]) if len(ahead) else len(X)
+
+
+def _trace_joint(
+    tr: _Tracer, X: np.ndarray, A: np.ndarray, block: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The nodes (n, 3), approaches (n, 3) and crease angles (n,) traced beyond the last node of ``X``
+    (approaches ``A``; see :func:`grow_pieces`), and the index of the node of ``block`` the trace ran
+    into (within ``tr.eps``; -1 when it stopped for another reason)."""
+    d = _end_directions(X, tr.spacing, max(0.01, 3 * tr.spacing))[1]
+    a = _unit(A[-5:].mean(axis=0))
+    pos = X[-1]
+    block_tree = cKDTree(block) if len(block) else None
+    cos_turn, cos_app = np.cos(tr.max_turn), np.cos(tr.max_approach_turn)
+    nodes, apps, creases, hit = [], [], [], -1
+    for _ in range(tr.max_steps):
+        Xn, An, ok, crease = _refine_nodes(
+            tr.P,
+            tr.N,
+            tr.tree,
+            (pos + tr.spacing * d)[None],
+            tr.side_radius,
+            tr.approach_radius,
+            tr.min_crease_angle,
+        )
+        x, an = Xn[0], An[0]
+        step = x - pos
+        length = float(np.linalg.norm(step))
+        if not ok[0] or length < 0.3 * tr.spacing or float(step @ d) < cos_turn * length or an @ a < cos_app:
+            break
+        if block_tree is not None:
+            dist, k = block_tree.query(x)
+            if dist < tr.eps:
+                hit = int(k)
+                break
+        nb = tr.tree.query_ball_point(x, tr.side_radius)
+        if len(nb) < 6 or float(np.mean((tr.P[nb] - x) @ d)) < -0.25 * tr.side_radius:
+            break  # the cloud ends here: no surface ahead of the node
+        nodes.append(x)
+        apps.append(an)
+        creases.append(float(crease[0]))
+        d = _unit(d + step / length)
+        a, pos = an, x
+    if not nodes:
+        return np.empty((0, 3)), np.empty((0, 3)), np.empty(0), hit
+    return np.array(nodes), np.array(apps), np.array(creases), hit
+
+
 def _smooth_positions(X: np.ndarray, window: int, closed: bool) -> np.ndarray:
     """Savitzky-Golay (quadratic) smoothing over ``window`` nodes: no shrinkage on curved seams."""
     n = len(X)
@@ -966,6 +1200,19 @@ def _smooth_approach(A: np.ndarray, ok: np.ndarray, window: int, closed: bool) -
     return _unit(_smooth_positions(ref, window, closed))
 
 
+def _orthogonal_to_travel(X: np.ndarray, A: np.ndarray, closed: bool) -> np.ndarray:
+    """The approach directions ``A`` without their component along the seam polyline ``X`` (central
+    differences). Both side normals of a joint are perpendicular to its line, so their bisector is too;
+    the fitted bisector is only perpendicular to the *fitted* crease line, whose direction is poorly
+    determined where the side planes differ little or curve (the ~145 deg flanks and the acute toe of a
+    pipe junction: 4-20 deg along the seam), while the smoothed polyline's is not."""
+    if len(X) < 3:
+        return A
+    T = (np.roll(X, -1, axis=0) - np.roll(X, 1, axis=0)) if closed else np.gradient(X, axis=0)
+    T = _unit(T)
+    return _unit(A - np.einsum("ij,ij->i", A, T)[:, None] * T)
+
+
 def chain_seams(
     P: np.ndarray,
     N: np.ndarray,
@@ -989,6 +1236,8 @@ def chain_seams(
     max_gap_angle: float = np.deg2rad(20.0),
     smooth_length: float = 0.06,
     approach_radius: float = 0.0,
+    max_grow: float = 0.3,
+    grow_min_crease_angle: float = np.deg2rad(20.0),
 ) -> list[SeamPolyline]:
     """Cluster the weldable points and turn the clusters into ordered, resampled polylines.
 
@@ -1049,6 +1298,19 @@ def chain_seams(
                     continue
             piece = _Piece(Xs, As, piece.closed, piece.labels, ok, crease)
         pieces.append(piece)
+    if max_grow > 0 and refine:
+        pieces = grow_pieces(
+            P,
+            N,
+            tree,
+            pieces,
+            spacing=spacing,
+            eps=eps,
+            side_radius=side_radius,
+            approach_radius=approach_radius,
+            min_crease_angle=min(min_crease_angle, grow_min_crease_angle),
+            max_length=max_grow,
+        )
     if max_gap > 0 and refine:
         pieces = bridge_pieces(
             P,
@@ -1059,7 +1321,7 @@ def chain_seams(
             max_angle=max_gap_angle,
             spacing=spacing,
             side_radius=side_radius,
-            min_crease_angle=min_crease_angle,
+            min_crease_angle=min(min_crease_angle, grow_min_crease_angle),
             approach_radius=approach_radius,
         )
     window = max(int(smooth_window), int(round(smooth_length / spacing)) | 1)
@@ -1097,6 +1359,7 @@ def chain_seams(
         length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
         if length < min_length or len(Xr) < 2:
             continue
+        Ar = _orthogonal_to_travel(Xr, Ar, closed)
         Xr, Ar = _orient(Xr, Ar, closed)
         if refine and ok.sum() >= 3:  # the included angle of the fitted side planes decides
             joint = "groove" if np.pi - np.median(crease[ok]) < groove_max_angle else "concave"
@@ -1211,6 +1474,7 @@ def extract_seams(
     refine: bool = True,
     fit_radius: float | None = None,
     max_gap: float = 0.03,
+    max_grow: float = 0.3,
     smooth_length: float = 0.06,
     neighbours: NeighbourTable | None = None,
     viewpoints: np.ndarray | None = None,
@@ -1236,7 +1500,9 @@ def extract_seams(
             (default ``max(class_radius_factor * r, 8 mm)``: enough points for sub-degree planes); the
             seam points are snapped with fits at ``class_radius_factor * r``.
         max_gap: pieces of one seam whose ends are at most this far apart (m) and collinear are
-            chained across the gap (0 disables). smooth_length: smoothing window along the seam (m).
+            chained across the gap (0 disables). max_grow: open seams are traced along their joint
+            beyond their ends by at most this much (m) per end, joining the pieces they reach
+            (:func:`grow_pieces`; 0 disables). smooth_length: smoothing window along the seam (m).
         neighbours: optional :class:`~weldcell.plugins.scan_plan.denoise.NeighbourTable` of ``points``
             (the denoising stage's shared search); replaces the KD-tree searches of eq. 11 and of the
             normals when it reaches at least r.
@@ -1257,6 +1523,8 @@ def extract_seams(
     _positive(fit_radius, "fit_radius")
     if not np.isfinite(max_gap) or max_gap < 0:
         raise DataError(f"max_gap must be >= 0 m, got {max_gap}", "pass e.g. 0.03 (0 disables bridging)")
+    if not np.isfinite(max_grow) or max_grow < 0:
+        raise DataError(f"max_grow must be >= 0 m, got {max_grow}", "pass e.g. 0.3 (0 disables tracing)")
     _positive(smooth_length, "smooth_length")
     P = _as_points(points, m)
     es = edge_scores(
@@ -1319,6 +1587,7 @@ def extract_seams(
             joints=joints,
             refine=refine,
             max_gap=max_gap,
+            max_grow=max_grow,
             smooth_length=smooth_length,
         )
     params = dict(m=m, t=t, radius=r, sigma=sigma, floor=floor, min_intensity=min_intensity)

@@ -282,6 +282,8 @@ def test_bad_settings_raise_data_error(tee):
         extract_seams(P, joints=("butt",))
     with pytest.raises(DataError, match="normals"):
         extract_seams(P, normals=np.zeros((3, 3)))
+    with pytest.raises(DataError, match="max_grow must be >= 0"):
+        extract_seams(P, max_grow=-0.1)
 
 
 # ----------------------------------------------------------------------------- speed-ups keep results
@@ -486,3 +488,113 @@ def test_multi_view_normals_face_a_camera_that_sees_the_point():
     N = out * rng.choice([-1.0, 1.0], (len(P), 1))  # unoriented
     No = oriented_normals(PointCloud(P, normals=N, meta={"viewpoints": V.tolist()}))
     assert np.mean(np.einsum("ij,ij->i", No, out) > 0) > 0.99
+
+
+# ----------------------------------------------------------------------------- folds, tracing, curved saddles
+
+
+def _v_sheet(included_deg: float, spacing: float = 0.0005, width: float = 0.01, length: float = 0.02):
+    """Two flat sides meeting along the y axis at ``included_deg``, opening towards +z, normals facing
+    into the V (the air side). Returns points, normals and the index of a point on the crease."""
+    h = np.deg2rad(included_deg) / 2
+    u, y = np.meshgrid(np.arange(0, width, spacing), np.arange(0, length, spacing), indexing="ij")
+    u, y = u.ravel(), y.ravel()
+    sides = []
+    for s in (1.0, -1.0):
+        P = np.column_stack([s * u * np.sin(h), y, u * np.cos(h)])
+        N = np.tile([-s * np.cos(h), 0.0, np.sin(h)], (len(u), 1))
+        sides.append((P, N))
+    P = np.vstack([p for p, _ in sides])
+    N = np.vstack([n for _, n in sides])
+    return P, N, int(np.argmin(np.linalg.norm(P - [0, length / 2, 0], axis=1)))
+
+
+@pytest.mark.parametrize("included, label", [(10.0, "boundary"), (60.0, "groove"), (120.0, "concave")])
+def test_sides_folded_onto_each_other_are_not_a_groove(included, label):
+    """A "groove" of ~10 deg is the two faces of a thin sheet or a scan border whose normals flipped (the
+    false seams at the Y-pipe's pipe ends); real V-grooves and fillets keep their class."""
+    from weldcell.plugins.scan_plan.seams import LABEL_NAMES, classify_edges
+
+    P, N, i = _v_sheet(included)
+    lab, _ = classify_edges(P, N, cKDTree(P), np.array([i]), 0.003)
+    assert LABEL_NAMES[int(lab[0])] == label
+
+
+def test_pipe_end_seen_at_grazing_incidence_gives_no_seam():
+    """A capped pipe end whose wall normals near the rim are flipped at random on one flank (the
+    orientation of a wall seen only at grazing incidence): the old classification saw a 15-24 mm
+    "concave" seam there (the Y-pipe's false seams at its pipe ends); the rim is convex, no joint."""
+    rng = np.random.default_rng(0)
+    n, m = 150000, 30000
+    th, z = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 0.08, n)
+    radial = np.column_stack([np.cos(th), np.sin(th), np.zeros(n)])
+    rr, t2 = 0.03 * np.sqrt(rng.random(m)), rng.uniform(0, 2 * np.pi, m)
+    P = np.vstack(
+        [
+            radial * 0.03 + np.outer(z, [0, 0, 1.0]),
+            np.column_stack([rr * np.cos(t2), rr * np.sin(t2), np.full(m, 0.08)]),
+        ]
+    )
+    N = np.vstack([radial, np.tile([0.0, 0.0, 1.0], (m, 1))])
+    band = (P[:, 2] > 0.074) & (P[:, 2] < 0.0799) & (P[:, 1] < -0.02)
+    N[band] *= rng.choice([-1.0, 1.0], (band.sum(), 1))
+    P, N = voxelize(P + rng.normal(0, NOISE, P.shape), N)
+    assert extract_seams(P, N).seams == []
+
+
+def test_tracing_joins_pieces_across_a_long_gap_and_stops_at_the_part_end(tee):
+    from weldcell.plugins.scan_plan.seams import grow_pieces
+
+    P, N = tee[0], tee[1]
+    a, b = _tee_piece(P, N, 0.02, 0.035), _tee_piece(P, N, 0.075, 0.085)  # 40 mm apart: beyond max_gap
+    out = grow_pieces(
+        P,
+        N,
+        cKDTree(P),
+        [a, b],
+        spacing=0.0015,
+        eps=0.003,
+        side_radius=0.006,
+        approach_radius=0.008,
+        min_crease_angle=np.deg2rad(20),
+        max_length=0.3,
+    )
+    assert len(out) == 1
+    X = out[0].X
+    y = X[:, 1] if X[-1, 1] > X[0, 1] else X[::-1, 1]
+    assert np.all(np.diff(y) > 0)  # one run, no fold at the join
+    assert y.min() < 0.006 and y.max() > 0.094  # traced to the part's ends (0 and 0.1 m) ...
+    assert y.min() > -0.002 and y.max() < 0.102  # ... and not beyond them
+    assert np.max(np.abs(X[:, [0, 2]] - [0.005, 0.008])) < 5e-4
+
+
+@pytest.fixture(scope="module")
+def y_pipe_cloud():
+    from weldcell.hal.sim.workpieces import make_workpiece
+
+    wp = make_workpiece("y-pipe")
+    pc = wp.sample_surface(300000, rng=5)
+    rng = np.random.default_rng(5)
+    P, N = voxelize(pc.points + rng.normal(0, NOISE, pc.points.shape), pc.normals)
+    return P, N, wp.seams_in_world()[0]
+
+
+def test_y_pipe_junction_is_one_closed_seam_with_the_approach_of_the_saddle(y_pipe_cloud):
+    """The Y-pipe's junction: a shallow crease (~145 deg included) on the flanks, 45 deg at the toe. It
+    must come out whole (one closed seam, the flanks traced) with the approach of the curved saddle
+    (bisector of the two walls' normals at the seam) and perpendicular to the seam."""
+    from weldcell.plugins.scan_plan.metrics import pose_rmse
+    from weldcell.plugins.scan_plan.torch_path import torch_frames, travel_directions
+
+    P, N, truth = y_pipe_cloud
+    res = extract_seams(P, N)
+    assert len(res.seams) == 1 and res.seams[0].closed
+    s = res.seams[0]
+    assert s.length == pytest.approx(truth.length, rel=0.03)
+    line = _unit(np.roll(s.points, -1, axis=0) - np.roll(s.points, 1, axis=0))  # the seam's direction
+    assert np.max(np.abs(np.einsum("ij,ij->i", s.normals, line))) < 1e-9
+    T = travel_directions(s.points, 5, True)
+    frames = torch_frames(s.points, s.normals, T, standoff=0.0)
+    r = pose_rmse(frames, truth.points, truth.approach, truth.travel)
+    assert r["translation_m"] < 3e-4
+    assert np.degrees(r["approach_rad"]) < 2.0
