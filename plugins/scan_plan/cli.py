@@ -540,6 +540,12 @@ def hand_eye_option(
     metavar="reconstruct.KEY=VALUE",
     help="Set a stage setting, e.g. reconstruct.voxel='2 mm'. Repeatable.",
 )
+@click.option(
+    "--anchor",
+    type=click.Choice(["mean", "first", "hand-eye"]),
+    help="Model placement (same as --set reconstruct.anchor=...): 'hand-eye' also finds the hand-eye "
+    "transform's error from the views and corrects it.",
+)
 def reconstruct_command(
     scans_dir: Path,
     output: Path,
@@ -549,6 +555,7 @@ def reconstruct_command(
     roi_max: str | None,
     profile: Path | None,
     sets: tuple[str, ...],
+    anchor: str | None,
 ) -> None:
     """Merge posed scans into one model in the robot base frame, refined by linear ICP.
 
@@ -556,7 +563,10 @@ def reconstruct_command(
     (weldcell/posed-scans@1).
     """
     pm = _pm()
-    stages = resolve_stages(pm, ("reconstruct",), profile, parse_sets(sets))
+    overrides = parse_sets(sets)
+    if anchor is not None:
+        overrides.setdefault("reconstruct", {})["anchor"] = anchor
+    stages = resolve_stages(pm, ("reconstruct",), profile, overrides)
     data = load_posed_scans(scans_dir)
     T_fc, source = hand_eye_option(hand_eye, mount, data.T_flange_camera)
     spec, settings = stages["reconstruct"]
@@ -595,6 +605,9 @@ def reconstruct_command(
             f"{rec.fitness[i]:>6.3f}  {corr:>17}  {'yes' if rec.accepted[i] else 'no'}"
         )
     click.echo(f"model           {len(rec.cloud)} points -> {output}  ({dt:.2f} s, {spec.name})")
+    he = getattr(rec, "hand_eye", None)
+    if he is not None:
+        click.echo(f"hand-eye        {he.describe()}")
     write_json(
         output.with_suffix(".json"),
         {
@@ -615,5 +628,9 @@ def reconstruct_command(
                 for i, n in enumerate(names)
             ],
             "runtime_s": round(dt, 4),
+            **({"hand_eye_correction": he.summary()} if he is not None else {}),
+            **(
+                {"T_flange_camera_corrected": (T_fc @ he.D).tolist()} if he is not None and he.applied else {}
+            ),
         },
     )

@@ -386,6 +386,10 @@ def run(ctx) -> dict:
         "fitness": rec.fitness,
         "accepted": rec.accepted,
     }
+    he_fit = getattr(rec, "hand_eye", None)
+    if he_fit is not None:  # anchor "hand-eye": the hand-eye error the reconstruction found
+        ctx.figures["reconstruction"]["hand_eye_correction"] = he_fit.summary()
+        ctx.reporter.info(f"hand-eye: {escape(he_fit.describe())}")
     with ctx.step("denoise (bilateral filter)"):
         clean = ctx.stage("denoise")(rec.cloud)
         write_cloud(ctx.path("model_denoised.ply"), clean)
@@ -424,6 +428,9 @@ def run(ctx) -> dict:
     if ctx.profile.output.report:
         with ctx.step("report"):
             write_report(ctx, scans, rec, clean, extraction, path, gt)
+            if he_fit is not None:
+                with ctx.path("summary.txt").open("a") as f:
+                    f.write(f"\nhand-eye (found by the reconstruction): {he_fit.describe()}\n")
             if refused is not None:
                 with ctx.path("summary.txt").open("a") as f:
                     f.write(f"\nEXECUTION REFUSED by the safety gate: {refused.message}\n")

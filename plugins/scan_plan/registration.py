@@ -54,6 +54,9 @@ class IcpResult:
     (``step_rotation`` rad, ``step_translation`` m). ``distances`` / ``initial_distances``: each source
     point's distance to its nearest target point at ``T`` / at the initial guess (inf where farther than
     ``max_correspondence_distance``), e.g. for eq. 20 at a tighter inlier distance without a new search.
+    ``information``: the (robustly weighted) point-to-plane normal matrix ``A^T W A / n_inliers`` of the
+    last solved iteration, for a correction twist ``(omega, p)`` about the target frame's origin: how
+    well each direction of the correction is constrained (zeros if no iteration was solved).
     """
 
     T: np.ndarray
@@ -66,6 +69,7 @@ class IcpResult:
     history: list[dict] = field(default_factory=list)
     distances: np.ndarray | None = field(default=None, repr=False)
     initial_distances: np.ndarray | None = field(default=None, repr=False)
+    information: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)), repr=False)
 
 
 def _robust_weights(r: np.ndarray, kernel: str | None, scale: float | None) -> np.ndarray:
@@ -135,22 +139,30 @@ def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
     return J
 
 
+def _normal_matrix(J: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """``[A b]^T W [A b]`` (7x7) of the rows ``J = [A | b]^T`` in one product."""
+    if weights is not None:
+        J = J * np.sqrt(weights)[None, :]
+    return _gram(J)
+
+
 def _solve(
-    J: np.ndarray,
+    J: np.ndarray | None,
     weights: np.ndarray | None,
     rcond: float,
     prior: tuple[np.ndarray, np.ndarray] | None = None,
+    G: np.ndarray | None = None,
 ) -> np.ndarray:
     """Eq. 8 on the rows ``J = [A | b]^T``: ``[A b]^T W [A b]`` in one product, then the 6x6 pseudo-inverse.
 
     The pseudo-inverse of the symmetric 6x6 ``A^T A`` is taken through its eigen-decomposition (as
     ``pinv(..., hermitian=True)``: eigenvalues below ``rcond`` x the largest count as zero).
     ``prior = (lam, c)`` adds ``sum lam_j (x_j + c_j)^2`` (a diagonal Gaussian prior pulling the total
-    correction ``x + c`` towards zero) to the least-squares cost.
+    correction ``x + c`` towards zero) to the least-squares cost. ``G``: the 7x7 normal matrix when the
+    caller has formed it already (:func:`_normal_matrix`).
     """
-    if weights is not None:
-        J = J * np.sqrt(weights)[None, :]
-    G = _gram(J)
+    if G is None:
+        G = _normal_matrix(J, weights)
     H, g = G[:6, :6], G[:6, 6]
     if prior is not None:
         lam, c = prior
@@ -160,6 +172,15 @@ def _solve(
     keep = np.abs(w) > rcond * np.abs(w).max()
     Vk = V[:, keep]
     return Vk @ ((Vk.T @ g) / w[keep])
+
+
+def point_to_plane_information(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``A^T A / N`` (6x6) of eq. 7's rows ``[s x n, n]``: how well the points with these normals
+    constrain each direction of a correction twist ``(omega, p)`` about the frame's origin (the
+    unweighted counterpart of :attr:`IcpResult.information`)."""
+    P = as_points(points, "points", min_points=1)
+    J = _system_rows(P, np.asarray(normals, dtype=float), np.zeros(len(P)))
+    return _gram(J)[:6, :6] / len(P)
 
 
 def point_to_plane_step(
@@ -478,6 +499,7 @@ def linear_icp(
     prev: tuple[float, float] | None = None
     last = None
     dist0 = dist = None
+    info = np.zeros((6, 6))
     for it in range(max_iterations + 1):
         Ss = _rigid_apply(S, T)
         dist, idx = cache.query(Ss)
@@ -506,7 +528,9 @@ def linear_icp(
             break
         w = _robust_weights(res, robust, robust_scale) if robust else None
         pr = _prior_terms(prior, T, init_inv, res) if prior is not None else None
-        x = _solve(_system_rows(s_in, nc[:, :3], -res), w, 1e-10, pr)
+        G = _normal_matrix(_system_rows(s_in, nc[:, :3], -res), w)
+        info = G[:6, :6] / n_in
+        x = _solve(None, None, 1e-10, pr, G)
         T = _step_matrix(x, update) @ T
         if update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
             T[:3, :3] = orthonormalize(T[:3, :3])
@@ -544,4 +568,5 @@ def linear_icp(
         history=history,
         distances=dist,
         initial_distances=dist0,
+        information=info,
     )

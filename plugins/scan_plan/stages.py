@@ -30,9 +30,17 @@ class ReconstructSettings(Settings):
     max_correction: tuple[PositiveLength, PositiveAngle] = Field(
         (0.05, 0.1745), description="largest ICP correction accepted over kinematics + hand-eye [m, rad]"
     )
-    anchor: Literal["mean", "first"] = Field(
+    anchor: Literal["mean", "first", "hand-eye"] = Field(
         "mean",
-        description="registered model placement: 'mean' of the views' kinematic poses or the 'first' view's",
+        description="registered model placement: 'mean' of the views' kinematic poses, the 'first' view's, "
+        "or 'hand-eye': fit one hand-eye correction common to all views and re-place them with it "
+        "(needs views from varied tool orientations; falls back to 'mean' with a note)",
+    )
+    hand_eye_passes: int = Field(
+        2,
+        ge=0,
+        description="anchor 'hand-eye': leave-one-out re-registration passes refining the correction "
+        "(each costs about one more ICP per view)",
     )
     pose_prior: tuple[PositiveLength, PositiveAngle] | None = Field(
         None,
@@ -61,6 +69,7 @@ class Reconstructor:
             robust=robust,
             max_correction=tuple(self.s.max_correction),
             anchor=self.s.anchor,
+            hand_eye_passes=self.s.hand_eye_passes,
             prior=tuple(self.s.pose_prior) if self.s.pose_prior is not None else None,
             progress=progress,
         )

@@ -161,3 +161,155 @@ def test_stage_settings_take_a_pose_prior_in_units_and_refuse_non_positive_ones(
             ReconstructSettings(pose_prior=bad)
     with pytest.raises(ValidationError):
         ReconstructSettings(anchor="middle")
+
+
+# ------------------------------------------------------------------ anchor "hand-eye": one correction
+def look_at_corner(azimuth_deg: float, elevation_deg: float, distance: float = 0.3) -> np.ndarray:
+    """A camera pose (z forward) looking at the corner workpiece's joint from azimuth / elevation."""
+    from weldcell.sdk.geometry import frame_from_axes
+
+    target = transform_points(T_BASE_PART, np.array([[0.1, 0.15, 0.0]]))[0]
+    az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
+    eye = target + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return frame_from_axes(np.cross(target - eye, [0.0, 0.0, 1.0]), target - eye, eye)
+
+
+def planted_views(error: np.ndarray, directions=((200, 50), (250, 60), (180, 70), (225, 35), (260, 45))):
+    """Views of the corner workpiece from varied directions, posed through a hand-eye transform that is
+    off by ``error`` (``T_flange_camera_given = T_flange_camera_true @ error``)."""
+    scans, truth = [], []
+    for i, (az, el) in enumerate(directions):
+        P, _ = corner_workpiece(spacing=0.0015, noise=0.0002, seed=20 + i)
+        T_bc = look_at_corner(az, el)
+        cloud = PointCloud(transform_points(invert(T_bc), transform_points(T_BASE_PART, P)), frame="camera")
+        scans.append(PosedScan(cloud, T_bc @ invert(T_FLANGE_CAMERA), timestamp=float(i)))
+        truth.append(T_bc)
+    return scans, truth, T_FLANGE_CAMERA @ error
+
+
+PLANTED = T_from_rotvec(np.deg2rad(0.5) * np.array([0.6, -0.48, 0.64]), [0.0012, -0.0015, 0.0008])
+
+
+def test_hand_eye_anchor_recovers_a_planted_hand_eye_error():
+    scans, truth, T_fc = planted_views(PLANTED)
+    res = reconstruct(scans, T_fc, voxel=0.003, anchor="hand-eye")
+    fit = res.hand_eye
+    assert fit.applied and fit.views == [0, 1, 2, 3, 4] and fit.passes == 2 and fit.spread_deg > 10
+    # the corrected hand-eye is the true one within 0.1 mm / 0.02 deg (the error was 2.1 mm / 0.5 deg)
+    t, r = pose_error(T_fc @ fit.D, T_FLANGE_CAMERA)
+    assert t < 1e-4 and r < np.deg2rad(0.02), (t, np.rad2deg(r))
+    assert fit.sigma_mm < 0.2 and fit.residual_mm < 0.5
+    # every view is placed by the one correction, in the true base frame
+    for T, T_true, scan in zip(res.T_base_camera, truth, scans, strict=True):
+        assert np.allclose(T, scan.T_base_flange @ T_fc @ fit.D, atol=1e-12)
+        t, r = pose_error(T, T_true)
+        assert t < 3e-4 and r < np.deg2rad(0.03)
+    # better than averaging the views' kinematic placements
+    mean = reconstruct(scans, T_fc, voxel=0.003)
+
+    def worst(rec) -> float:
+        return max(pose_error(T, T_true)[0] for T, T_true in zip(rec.T_base_camera, truth, strict=True))
+
+    assert worst(res) < worst(mean) / 3 and res.cloud.meta["anchor"] == "hand-eye"
+
+
+def test_hand_eye_anchor_falls_back_to_the_mean_when_view_rotations_are_alike():
+    scans, _ = make_views(first_too=True)  # every camera looks straight down: one rotation for all
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, anchor="hand-eye")
+    assert not res.hand_eye.applied and "not observable" in res.hand_eye.note
+    assert np.array_equal(res.hand_eye.D, np.eye(4)) and res.hand_eye.spread_deg < 1.0
+    assert any("placed the model by the mean anchor" in str(w.message) for w in caught)
+    mean = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003)
+    for a, b in zip(res.T_base_camera, mean.T_base_camera, strict=True):
+        assert np.allclose(a, b, atol=1e-12)
+
+
+def test_hand_eye_anchor_leaves_out_a_refused_view():
+    scans, _, T_fc = planted_views(PLANTED)
+    # view 3's robot pose is off by another 8 mm: its ICP correction is larger than max_correction
+    bad = scans[3].T_base_flange @ make_T(t=[0.008, 0.0, 0.0])
+    scans[3] = PosedScan(scans[3].cloud, bad, timestamp=3.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = reconstruct(scans, T_fc, voxel=0.003, anchor="hand-eye", max_correction=(0.006, 0.1))
+    assert not res.accepted[3] and any("view 3" in str(w.message) for w in caught)
+    fit = res.hand_eye
+    assert fit.applied and 3 not in fit.views and len(fit.views) == 4
+    t, r = pose_error(T_fc @ fit.D, T_FLANGE_CAMERA)
+    assert t < 3e-4 and r < np.deg2rad(0.05), (t, np.rad2deg(r))
+
+
+def test_default_anchor_is_still_the_mean_and_fits_no_hand_eye():
+    from weldcell.plugins.scan_plan.stages import ReconstructSettings
+
+    scans, _, T_fc = planted_views(PLANTED)
+    res = reconstruct(scans, T_fc, voxel=0.003)
+    assert res.hand_eye is None and res.cloud.meta["anchor"] == "mean"
+    s = ReconstructSettings()
+    assert s.anchor == "mean" and s.hand_eye_passes == 2
+    assert ReconstructSettings(anchor="hand-eye", hand_eye_passes=0).anchor == "hand-eye"
+    with pytest.raises(DataError, match="hand_eye_passes"):
+        reconstruct(scans, T_fc, voxel=0.003, anchor="hand-eye", hand_eye_passes=-1)
+
+
+def test_fit_hand_eye_solves_exact_poses_and_measures_rotation_spread():
+    from weldcell.plugins.scan_plan.hand_eye_fit import fit_hand_eye, rotation_spread
+
+    rng = np.random.default_rng(3)
+    G = T_from_rotvec([0.002, -0.004, 0.003], [0.002, 0.001, -0.003])
+    B = [T_from_rotvec(rng.normal(size=3) * 0.5, rng.normal(size=3) * 0.3) for _ in range(6)]
+    A = [G @ b @ PLANTED for b in B]
+    fit = fit_hand_eye(A, B, [np.eye(6)] * 6, [1.0] * 6)
+    assert fit.applied and np.allclose(fit.D, PLANTED, atol=1e-9) and np.allclose(fit.G, G, atol=1e-9)
+    assert fit.residual_mm < 1e-6
+    z = [T_from_rotvec([0.0, 0.0, a])[:3, :3] for a in (0.0, 0.5, 1.0)]
+    assert rotation_spread(z) < 1e-6  # all about one axis: a correction about it is not observable
+    two = [np.eye(3), T_from_rotvec([0.3, 0.0, 0.0])[:3, :3]]
+    assert rotation_spread(two) < 1e-6  # two rotations always differ about one axis only
+    three = [*two, T_from_rotvec([0.0, 0.3, 0.0])[:3, :3]]
+    assert 0.15 < rotation_spread(three) < 0.3
+    assert not fit_hand_eye(A[:3], B[:3], [np.eye(6)] * 3, [1.0, 0.0, 1.0]).applied  # 2 views left
+
+
+@pytest.mark.filterwarnings("ignore:view .* rejected")
+def test_reconstruct_command_reports_the_hand_eye_correction(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+    from weldcell.sdk.cli import main
+    from weldcell.sdk.cloud import write_cloud
+
+    scans, _, T_fc = planted_views(PLANTED)
+    recs = []
+    for i, s in enumerate(scans):
+        write_cloud(tmp_path / f"{i:03d}.ply", s.cloud)
+        recs.append({"cloud": f"{i:03d}.ply", "T_base_flange": s.T_base_flange.tolist(), "stamp": float(i)})
+    doc = {"schema": "weldcell/posed-scans@1", "units": "m", "scans": recs}
+    (tmp_path / "scans.json").write_text(json.dumps(doc))
+    he = {"schema": "weldcell/hand-eye@1", "transform": "T_flange_camera", "T": T_fc.tolist(), "units": "m"}
+    (tmp_path / "he.json").write_text(json.dumps(he))
+    out = tmp_path / "model.ply"
+    args = [str(tmp_path), "-o", str(out), "--hand-eye", str(tmp_path / "he.json"), "--anchor", "hand-eye"]
+    res = CliRunner().invoke(main, ["reconstruct", *args, "--set", "reconstruct.voxel='3 mm'"])
+    assert res.exit_code == 0, res.output
+    assert "hand-eye        correction" in res.output and "from 5 views" in res.output
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert report["hand_eye_correction"]["applied"] and report["stage"]["settings"]["anchor"] == "hand-eye"
+    t, r = pose_error(np.array(report["T_flange_camera_corrected"]), T_FLANGE_CAMERA)
+    assert t < 1e-4 and r < np.deg2rad(0.02)
+
+
+def test_icp_information_shows_which_directions_the_geometry_constrains():
+    from weldcell.plugins.scan_plan.registration import linear_icp, point_to_plane_information
+
+    rng = np.random.default_rng(4)
+    plane = np.c_[rng.uniform(-0.05, 0.05, (3000, 2)), rng.normal(0.0, 1e-4, 3000)]
+    res = linear_icp(plane + [0, 0, 0.001], plane, max_correspondence_distance=0.01)
+    # twist (omega, p): a plane z = 0 constrains p_z, omega_x and omega_y, not p_x, p_y or omega_z
+    d = np.diag(res.information)
+    assert d[5] > 0.9 and max(d[3], d[4]) < 1e-3 * d[5] and d[2] < 1e-3 * min(d[0], d[1])
+    exact = point_to_plane_information(plane, np.tile([0.0, 0.0, 1.0], (len(plane), 1)))
+    assert np.allclose(exact[5, 5], 1.0) and np.allclose(exact[3:5, 3:5], 0.0)
+    assert np.allclose(res.information, exact, rtol=0.05, atol=1e-3)
