@@ -1,6 +1,6 @@
 """Speed of the point-cloud bilateral filter (eqs. 9-10) and voxel down-sampling on a large noisy scan.
 
-/work/venv/bin/python benchmarks/bilateral_speed.py [--points 500000]
+.venv/bin/python benchmarks/bilateral_speed.py [--points 500000]
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Flange hand-eye on the real ancorasir data (Franka + PhoXi, UR10e + Azure Kinect).
 
-    /work/venv/bin/python benchmarks/handeye_real.py [--shuffles 50]
+    .venv/bin/python benchmarks/handeye_real.py [--shuffles 50]
 
 (1) full pipeline from the raw Franka PhoXi scans (segmentation + RANSAC circle + eqs. 9-12) next
 to the authors' stored p_cam and calib_result.json; (2) the 48-pair Franka set: all-data SVD, the

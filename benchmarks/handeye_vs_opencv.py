@@ -1,6 +1,6 @@
 """Flange method vs the target-based AX=XB / AX=YB solvers on the same simulated cell and noise.
 
-    /work/venv/bin/python benchmarks/handeye_vs_opencv.py [--realizations 20]
+    .venv/bin/python benchmarks/handeye_vs_opencv.py [--realizations 20]
 
 Cell of §3.1 (eq. 19 camera, 30 poses in the 0.3 x 0.3 x 0.2 m box, orientations within 0.3 rad).
 Eq. 19's rotation is exactly 180° (about (1, -1, 0)), Tsai's singularity: Tsai is refused there

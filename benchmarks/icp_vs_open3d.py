@@ -5,7 +5,7 @@ and convergence thresholds (relative fitness and RMSE 1e-6, at most 50 iteration
 of ``--repeat`` runs of the registration call alone (each builds its own KD-tree), ours and Open3D's
 interleaved so that load from other processes hits both alike. Prints a markdown table.
 
-    /work/venv/bin/python benchmarks/icp_vs_open3d.py [--repeat 7]
+    .venv/bin/python benchmarks/icp_vs_open3d.py [--repeat 7]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Paper 000, Table II: runtime of weld-path planning on a 500 mm straight V-groove butt joint, one capture,
 in four placements, in the simulated cell.
 
-Run:  /work/venv/bin/python benchmarks/scan_plan_table2.py [--repeats 5] [--preset realsense-d415]
+Run:  .venv/bin/python benchmarks/scan_plan_table2.py [--repeats 5] [--preset realsense-d415]
 
 Scene: the cell's V-groove butt joint (500 x 150 mm, 12 mm plates, 60 deg included angle, 1 mm root
 gap and face) lying on a 0.8 x 0.6 m fixture plate, placed

@@ -1,6 +1,6 @@
 """How fast the simulated depth cameras render, and how fast the workpieces build.
 
-Run:  /work/venv/bin/python benchmarks/sim_camera_speed.py [--repeats 5]
+Run:  .venv/bin/python benchmarks/sim_camera_speed.py [--repeats 5]
 
 For every camera preset at full resolution (and the D415 decimated by 2 and 4), it renders a
 v-groove butt joint on a floor plate from straight above at a distance inside the camera's range,

@@ -9,7 +9,7 @@ Measures, on this machine:
   3. the end of the seam: our hold-and-stop vs the paper's reset of δ_d (sign flips, jerk, overshoot);
 and writes plots like Fig. 13 (paths of SRM tip, torch, robot) plus the deformation over time.
 
-Run:  /work/venv/bin/python benchmarks/tactile_tracking.py [--out DIR] [--quick]
+Run:  .venv/bin/python benchmarks/tactile_tracking.py [--out DIR] [--quick]
 """
 
 from __future__ import annotations
@@ -163,7 +163,7 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     out: dict = {
-        "command": "/work/venv/bin/python benchmarks/tactile_tracking.py" + (" --quick" if args.quick else "")
+        "command": ".venv/bin/python benchmarks/tactile_tracking.py" + (" --quick" if args.quick else "")
     }
 
     n = 60 if args.quick else 300

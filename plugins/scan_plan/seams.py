@@ -56,6 +56,22 @@ WELDABLE = {"concave": CONCAVE, "groove": GROOVE}
 #: smallest included angle of a weldable crease: sides that face each other more closely are the two faces
 #: of a thin sheet or a scan border whose normals flipped, not a groove a torch (or a camera) can see into
 MIN_INCLUDED_ANGLE = np.deg2rad(25.0)
+#: side-plane fits of the refinement ignore points more than this x the fit radius behind the other
+#: side's plane or off their own (a third surface, e.g. the top of a lap joint's upper plate beyond its
+#: 6 mm edge face)
+BEHIND_TOL = 0.15
+#: a fit that left out more than this fraction of its points saw a third surface: it is fitted again
+#: from the points within CORE_FRACTION x its radius, and the node takes the approach of the smaller
+#: (position) radius
+THIRD_SURFACE = 0.1
+CORE_FRACTION = 0.5
+#: acute creases (included angle below TOE_INCLUDED) whose position at the approach and the side radius
+#: differ by more than TOE_SHIFT (m) take their position from planes within TOE_RADIUS x the side radius
+TOE_INCLUDED = np.deg2rad(80.0)
+TOE_SHIFT = 3e-4
+TOE_RADIUS = 2.0 / 3.0
+#: below this many rows (a trace step) LAPACK's eigh is faster than the vectorised closed form
+SMALL_BATCH = 16
 
 
 @dataclass
@@ -359,7 +375,7 @@ def _two_sides(U: tuple[np.ndarray, ...], valid: np.ndarray, iterations: int = 3
     w = valid.astype(float)
     C, cnt = masked_covariance(U, w)
     mean = _wsum3(w, U) / np.maximum(cnt, 1)[:, None]
-    e = largest_eigvec(C)
+    e = np.linalg.eigh(C)[1][..., 2] if len(C) <= SMALL_BATCH else largest_eigvec(C)
     in_a = _dot3(U, e) > (mean * e).sum(1)[:, None]
     for _ in range(iterations):
         na = _unit(_wsum3(w * in_a, U))
@@ -435,7 +451,7 @@ def classify_edges(
     """
     X = P[cand]
     idx, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k)
-    na, da, nbv, db, _, _ = _fit_two_planes(Q, valid, na, nbv, in_a)
+    na, da, nbv, db, _, _, _ = _fit_two_planes(Q, valid, na, nbv, in_a)
     # re-split by plane distance, then: is each side in front of (concave) or behind (convex) the other?
     ra = _dot3(Q, na) - da[:, None]
     rb = _dot3(Q, nbv) - db[:, None]
@@ -503,7 +519,7 @@ def fit_two_planes(
     normals keep the orientation of ``n_a`` / ``n_b``. Returns ``(n_a, d_a, n_b, d_b, count_a, count_b)``
     with planes ``n . x = d``."""
     U = tuple(np.ascontiguousarray(Q[..., j]) for j in range(3))
-    return _fit_two_planes(U, valid, n_a, n_b, in_a, iterations)
+    return _fit_two_planes(U, valid, n_a, n_b, in_a, iterations)[:6]
 
 
 def _fit_two_planes(
@@ -513,25 +529,81 @@ def _fit_two_planes(
     n_b: np.ndarray,
     in_a: np.ndarray,
     iterations: int = 3,
+    behind_tol: float | None = None,
 ) -> tuple[np.ndarray, ...]:
-    """:func:`fit_two_planes` on the points' components ``U`` = (x, y, z), each (B, K)."""
-    out = []
+    """:func:`fit_two_planes` on the points' components ``U`` = (x, y, z), each (B, K); also returns the
+    mask of the points the final planes were fitted to.
+
+    ``behind_tol`` (m): fit a *concave* crease. A point assigned to one side that lies more than this
+    behind the other side's plane, or further than this from its own side's plane, is left out of the
+    next fit: it belongs to a third surface beyond a convex edge (e.g. the upper plate's top behind the
+    6 mm edge face of a lap joint), which would tilt the side plane it was assigned to. Rows where more
+    than ``THIRD_SURFACE`` of the points were left out are fitted again, starting from the points within
+    ``CORE_FRACTION`` of the radius (``behind_tol / BEHIND_TOL``): the normal split alone puts both
+    plates' tops on one side, and a plane through both sits between them."""
+    fit = _fit_planes_from(U, valid, valid, n_a, n_b, in_a, iterations, behind_tol, trim=False)
+    if behind_tol is None:
+        return fit
+    i = np.flatnonzero(fit[6].sum(1) < (1.0 - THIRD_SURFACE) * valid.sum(1))
+    fit = (*fit[:6], valid)
+    if not len(i):
+        return fit
+    core = (CORE_FRACTION * behind_tol / BEHIND_TOL) ** 2
+    near = valid[i] & (U[0][i] ** 2 + U[1][i] ** 2 + U[2][i] ** 2 <= core)
+    enough = near.sum(1) >= 8
+    i, near = i[enough], near[enough]
+    if not len(i):
+        return fit
+    Ui = tuple(u[i] for u in U)
+    again = _fit_planes_from(Ui, valid[i], near, n_a[i], n_b[i], in_a[i], iterations + 1, behind_tol)
+    fit = tuple(f.copy() for f in fit)
+    for whole, part in zip(fit, again, strict=True):
+        whole[i] = part
+    return fit
+
+
+def _kept(valid: np.ndarray, ra: np.ndarray, rb: np.ndarray, tol: float) -> np.ndarray:
+    """The points (of ``valid``) within ``tol`` of the nearer of two planes (signed distances ``ra``,
+    ``rb``) and not more than ``tol`` behind the other one."""
+    in_a = np.abs(ra) <= np.abs(rb)
+    own, other = np.where(in_a, ra, rb), np.where(in_a, rb, ra)
+    return valid & (np.abs(own) <= tol) & (other >= -tol)
+
+
+def _fit_planes_from(
+    U: tuple[np.ndarray, ...],
+    valid: np.ndarray,
+    use: np.ndarray,
+    n_a: np.ndarray,
+    n_b: np.ndarray,
+    in_a: np.ndarray,
+    iterations: int,
+    behind_tol: float | None,
+    trim: bool = True,
+) -> tuple[np.ndarray, ...]:
+    """:func:`_fit_two_planes` whose first fit uses only the points ``use`` (a subset of ``valid``); with
+    ``trim``, later fits only the points :func:`_kept` by ``behind_tol``. The last item returned is the
+    mask of the points kept by the final planes (``valid`` when ``behind_tol`` is None)."""
+    out, kept = [], valid
     for _ in range(iterations):
         out = []
-        for mask, ref in ((valid & in_a, n_a), (valid & ~in_a, n_b)):
+        for mask, ref in ((use & in_a, n_a), (use & ~in_a, n_b)):
             w = mask.astype(float)
             C, cnt = masked_covariance(U, w)
             c = _wsum3(w, U) / np.maximum(cnt, 1)[:, None]
-            n = smallest_eigvec(C)
+            n = np.linalg.eigh(C)[1][..., 0] if len(C) <= SMALL_BATCH else smallest_eigvec(C)
             n[np.einsum("ij,ij->i", n, ref) < 0] *= -1.0
             n[cnt < 3] = ref[cnt < 3]
             out.append((n, np.einsum("ij,ij->i", n, c), cnt))
         (na, da, _), (nb, db, _) = out
-        ra = np.abs(_dot3(U, na) - da[:, None])
-        rb = np.abs(_dot3(U, nb) - db[:, None])
-        in_a = ra <= rb
+        ra = _dot3(U, na) - da[:, None]
+        rb = _dot3(U, nb) - db[:, None]
+        in_a = np.abs(ra) <= np.abs(rb)
+        if behind_tol is not None:
+            kept = _kept(valid, ra, rb, behind_tol)
+            use = kept if trim else valid
     (na, da, ca), (nb, db, cb) = out
-    return na, da, nb, db, ca, cb
+    return na, da, nb, db, ca, cb, kept
 
 
 def _refine_on_sides(
@@ -556,8 +628,10 @@ def _refine_on_sides(
     in front of the other side's plane (concave) and both sides hold at least ``min_side_fraction`` of
     the points (a real joint has surface on both sides; the curled, noisy border of a scan has a few
     points only on its "second side")."""
-    _, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
-    na, da, nbv, db, ca, cb = _fit_two_planes(Q, valid, na, nbv, in_a)  # planes n . (x - X) = d
+    _, valid0, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
+    # planes n . (x - X) = d; points behind the other side's plane (a third surface) left out
+    na, da, nbv, db, ca, cb, valid = _fit_two_planes(Q, valid0, na, nbv, in_a, behind_tol=BEHIND_TOL * radius)
+    dropped = 1.0 - valid.sum(1) / np.maximum(valid0.sum(1), 1)
     crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
     ok = (ca >= 3) & (cb >= 3) & (np.minimum(ca, cb) >= min_side_fraction * (ca + cb))
     ok &= (crease >= min_crease_angle) & (np.pi - crease >= min_included_angle)
@@ -574,7 +648,7 @@ def _refine_on_sides(
     step[~ok] = 0.0
     too_far = np.linalg.norm(step, axis=1) > radius
     step[too_far] = 0.0
-    return X - step, -_unit(na + nbv), ok & ~too_far, crease
+    return X - step, -_unit(na + nbv), ok & ~too_far, crease, dropped
 
 
 def _mean_where(v: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -640,13 +714,29 @@ def _refine_nodes(
     the side planes within ``approach_radius`` (large: many points, sub-degree normals; by symmetry the
     bisector of two planes fitted to a curved wall is still the local one), the position from those
     within ``side_radius`` where that fit is usable too (small: planes fitted to a strongly curved wall
-    over a large radius sit inside it and pull the intersection line inwards)."""
+    over a large radius sit inside it and pull the intersection line inwards). Two exceptions: an acute
+    node whose two positions disagree (curved walls, the Y-pipe's toe) takes its position from planes
+    within ``TOE_RADIUS * side_radius``; a node whose approach-radius fit saw a third surface (a narrow
+    face) takes the approach of the ``side_radius`` planes."""
     workers = -1 if len(X) >= 64 else 1  # threads cost more than they save on a few nodes (a trace step)
     query = tree.query(X, k=int(min(256, len(P))), workers=workers)  # one search for both scales
-    X2, A, ok, crease = _refine_on_sides(P, N, tree, X, approach_radius, min_crease_angle, query=query)
+    X2, A, ok, crease, dropped = _refine_on_sides(
+        P, N, tree, X, approach_radius, min_crease_angle, query=query
+    )
     if approach_radius > side_radius:
-        Xs, _, ok_s, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle, query=query)
-        X2 = np.where((ok & ok_s)[:, None], Xs, X2)
+        Xs, As, ok_s, _, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle, query=query)
+        both = ok & ok_s
+        # an acute crease whose two position estimates disagree has curved walls (the Y-pipe's toe): its
+        # plane intersection at side_radius still lies inside the curve: position from smaller planes
+        toe = both & (np.linalg.norm(Xs - X2, axis=1) > TOE_SHIFT) & (np.pi - crease < TOE_INCLUDED)
+        X2 = np.where(both[:, None], Xs, X2)
+        if toe.any():
+            i = np.flatnonzero(toe)
+            Xt, _, ok_t, _, _ = _refine_on_sides(P, N, tree, X[i], TOE_RADIUS * side_radius, min_crease_angle)
+            X2[i[ok_t]] = Xt[ok_t]
+        # a third surface within the approach radius (a narrow face, e.g. a thin lap plate's edge): the
+        # planes of the smaller radius see less of what lies beyond it
+        A = np.where((both & (dropped > THIRD_SURFACE))[:, None], As, A)
     return X2, A, ok, crease
 
 
@@ -1123,19 +1213,43 @@ def _first_ahead(X: np.ndarray, end: np.ndarray, d: np.ndarray) -> int:
     return int(ahead[0]) if len(ahead) else len(X)
 
 
+def _cloud_ends(tr: _Tracer, x: np.ndarray, d: np.ndarray) -> bool:
+    """True where the cloud ends at ``x``: fewer than 6 points within ``tr.side_radius``, or they lie
+    behind it along ``d`` on average (no surface ahead of the node)."""
+    nb = tr.tree.query_ball_point(x, tr.side_radius)
+    return len(nb) < 6 or float(np.mean((tr.P[nb] - x) @ d)) < -0.25 * tr.side_radius
+
+
+def _crease_direction(tr: _Tracer, x: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Direction (sign of ``d``) of the intersection line of the two side planes fitted around ``x``
+    within ``tr.side_radius``; ``d`` where they are nearly parallel."""
+    _, valid, na, nb, in_a, Q = _sides_at(tr.P, tr.N, tr.tree, x[None], tr.side_radius, 256)
+    na, _, nb, _, _, _, _ = _fit_two_planes(Q, valid, na, nb, in_a, behind_tol=BEHIND_TOL * tr.side_radius)
+    u = np.cross(na[0], nb[0])
+    if float(np.linalg.norm(u)) < np.sin(tr.min_crease_angle):
+        return d
+    u = _unit(u)
+    return u if float(u @ d) >= 0 else -u
+
+
 def _trace_joint(
     tr: _Tracer, X: np.ndarray, A: np.ndarray, block: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """The nodes (n, 3), approaches (n, 3) and crease angles (n,) traced beyond the last node of ``X``
     (approaches ``A``; see :func:`grow_pieces`), and the index of the node of ``block`` the trace ran
     into (within ``tr.eps``; -1 when it stopped for another reason)."""
-    d = _end_directions(X, tr.spacing, max(0.01, 3 * tr.spacing))[1]
+    chord = max(0.01, 3 * tr.spacing)
+    d = _end_directions(X, tr.spacing, chord)[1]
+    if float(np.linalg.norm(X[-1] - X[0])) < chord:  # a short piece: its chord is no direction
+        d = _crease_direction(tr, X[-1], d)
     a = _unit(A[-5:].mean(axis=0))
     pos = X[-1]
     block_tree = cKDTree(block) if len(block) else None
     cos_turn, cos_app = np.cos(tr.max_turn), np.cos(tr.max_approach_turn)
     nodes, apps, creases, hit = [], [], [], -1
     for _ in range(tr.max_steps):
+        if _cloud_ends(tr, pos + tr.spacing * d, d):  # the part or the scan ends ahead: no fit needed
+            break
         Xn, An, ok, crease = _refine_nodes(
             tr.P,
             tr.N,
@@ -1155,9 +1269,8 @@ def _trace_joint(
             if dist < tr.eps:
                 hit = int(k)
                 break
-        nb = tr.tree.query_ball_point(x, tr.side_radius)
-        if len(nb) < 6 or float(np.mean((tr.P[nb] - x) @ d)) < -0.25 * tr.side_radius:
-            break  # the cloud ends here: no surface ahead of the node
+        if _cloud_ends(tr, x, d):
+            break
         nodes.append(x)
         apps.append(an)
         creases.append(float(crease[0]))

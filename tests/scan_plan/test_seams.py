@@ -24,6 +24,7 @@ from weldcell.plugins.scan_plan.seams import (
     edge_scores,
     extract_seams,
 )
+from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
 
 NOISE = 2e-4
@@ -598,3 +599,57 @@ def test_y_pipe_junction_is_one_closed_seam_with_the_approach_of_the_saddle(y_pi
     r = pose_rmse(frames, truth.points, truth.approach, truth.travel)
     assert r["translation_m"] < 3e-4
     assert np.degrees(r["approach_rad"]) < 2.0
+
+
+def _ring_scan(kind: str, decimation: int = 2) -> tuple[PointCloud, object]:
+    """``kind`` scanned by the sim D415 like Table I (8 views at 50 deg elevation, 4 at 20 deg, one from
+    above, 0.5 m from the seam's centre), merged with the true poses on a 1.5 mm voxel grid."""
+    from weldcell.hal.sim.camera_model import RaycastCamera
+    from weldcell.hal.sim.workpieces import make_workpiece
+    from weldcell.plugins.scan_plan.denoise import voxel_downsample
+    from weldcell.sdk.geometry import frame_from_axes
+
+    wp = make_workpiece(kind)
+    truth = wp.seams_in_world()[0]
+    c = truth.points.mean(axis=0)
+    cam = RaycastCamera("realsense-d415", [wp], decimation=decimation)
+    rng = np.random.default_rng(0)
+    eyes = [
+        c + 0.5 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        for el, n, off in ((np.radians(50), 8, 0.0), (np.radians(20), 4, np.pi / 4))
+        for az in np.linspace(0, 2 * np.pi, n, endpoint=False) + off
+    ]
+    parts = []
+    for eye in eyes:
+        T = frame_from_axes(np.cross(c - eye, [0.0, 0.0, 1.0]), c - eye, eye)
+        parts.append(cam.render(T, rng=rng).to_points() @ T[:3, :3].T + eye)
+    top = c + [0.0, 0.0, 0.5]
+    T = frame_from_axes([1.0, 0.0, 0.0], [0.0, 0.0, -1.0], top)
+    parts.append(cam.render(T, rng=rng).to_points() @ T[:3, :3].T + top)
+    P = voxel_downsample(np.vstack(parts), voxel_size=VOXEL)
+    meta = {"viewpoints": [e.tolist() for e in [*eyes, top]]}
+    return PointCloud(P, frame="base", meta=meta), truth
+
+
+def test_thin_lap_joint_scanned_by_the_d415_is_one_seam_at_its_root():
+    """A lap joint of 6 mm plates: the edge face is narrower than the 6-8 mm side-plane fits, whose
+    neighbourhoods also hold the upper plate's top. The seam must come out whole, on the root (not up the
+    edge face) and with the approach of the corner between the edge face and the lower plate."""
+    from weldcell.plugins.scan_plan.metrics import pose_rmse
+    from weldcell.plugins.scan_plan.stages import (
+        BilateralDenoiser,
+        BilateralSettings,
+        EdgeSeamExtractor,
+        EdgeSeamSettings,
+    )
+    from weldcell.plugins.scan_plan.torch_path import torch_frames, travel_directions
+
+    cloud, truth = _ring_scan("lap")
+    res = EdgeSeamExtractor(EdgeSeamSettings())(BilateralDenoiser(BilateralSettings())(cloud))
+    assert len(res.seams) == 1
+    s = res.seams[0]
+    assert s.length == pytest.approx(truth.length, rel=0.05)
+    frames = torch_frames(s.points, s.normals, travel_directions(s.points, 5, False), standoff=0.0)
+    r = pose_rmse(frames, truth.points, truth.approach, truth.travel)
+    assert r["translation_m"] < 5e-4
+    assert np.degrees(r["approach_rad"]) < 4.0
