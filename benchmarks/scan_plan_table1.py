@@ -158,10 +158,19 @@ def main() -> None:
         default=4,
         help="views on a lower ring (20 deg elevation) that see under the branch of the Y-pipe (0: off)",
     )
-    ap.add_argument("--pieces", nargs="*", default=list(WORKPIECES))
+    ap.add_argument(
+        "--pieces",
+        nargs="*",
+        default=list(WORKPIECES),
+        choices=list(WORKPIECES),
+        help="Table I pieces (other joints: benchmarks/seam_joints.py)",
+    )
     ap.add_argument("--variants", nargs="*", default=["exact", "hand-eye"], choices=["exact", "hand-eye"])
     ap.add_argument(
-        "--anchor", default="mean", choices=["mean", "first"], help="reconstruct()'s anchor (paper: first)"
+        "--anchor",
+        default="mean",
+        choices=["mean", "first", "hand-eye"],
+        help="reconstruct()'s anchor (paper: first)",
     )
     ap.add_argument(
         "--prior",
