@@ -243,7 +243,7 @@ def reconstruct(
             for r, ok in zip(icps[1:], accepted[1:], strict=True)
         ]
         first_fit = fit_hand_eye(T_bc, T_kin, info, conf)
-        fit = _hand_eye_anchor(srcs, T_kin, first_fit, hand_eye_passes, icp_kw, max_correction)
+        fit = _hand_eye_anchor(srcs, T_kin, first_fit, hand_eye_passes, icp_kw, max_correction, progress)
         if fit.applied:
             moves = [B @ fit.D @ invert(A) for A, B in zip(T_bc, T_kin, strict=True)]
             full = [P @ M[:3, :3].T + M[:3, 3] for P, M in zip(full, moves, strict=True)]
@@ -302,12 +302,16 @@ def _hand_eye_anchor(
     passes: int,
     icp_kw: dict,
     max_correction: tuple[float, float],
+    progress=None,
 ) -> HandEyeFit:
     """Refine the first hand-eye fit by ``passes`` leave-one-out re-registrations (a pass whose fit is
     not identifiable ends the refinement and the previous fit is kept)."""
+    n = len(srcs)
     for k in range(passes):
         if not fit.applied:
             break
+        if progress is not None:
+            progress(n, n, f"hand-eye correction: re-registration pass {k + 1}/{passes}")
         A, H, conf = _leave_one_out(srcs, T_kin, fit.D, icp_kw, max_correction)
         new = fit_hand_eye(A, T_kin, H, conf)
         if not new.applied:
