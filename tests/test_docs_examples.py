@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "weldcell-plugin-example"
 
@@ -34,27 +36,20 @@ def test_example_plugin_tests_pass():
     assert " passed" in proc.stdout and "failed" not in proc.stdout
 
 
-def test_profile_reference_is_up_to_date():
-    """docs/profile-reference.md matches the settings models in the code."""
+@pytest.mark.parametrize(
+    "generator",
+    ["gen_profile_reference.py", "gen_cli_help.py"],
+    ids=["profile-reference", "cli-help"],
+)
+def test_generated_docs_are_up_to_date(generator):
+    """docs/profile-reference.md matches the settings models in the code, and every `weldcell ... --help`
+    shown in docs/cli.md is what the command prints."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "docs" / "gen_profile_reference.py"), "--check"],
+        [sys.executable, str(ROOT / "docs" / generator), "--check"],
         cwd=ROOT,
         env=_env(),
         capture_output=True,
         text=True,
         timeout=300,
     )
-    assert proc.returncode == 0, "stale; run `python docs/gen_profile_reference.py`\n" + proc.stderr[-3000:]
-
-
-def test_cli_help_in_the_docs_is_current():
-    """Every `weldcell ... --help` shown in docs/cli.md is what the command prints."""
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "docs" / "gen_cli_help.py"), "--check"],
-        cwd=ROOT,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, "stale; run `python docs/gen_cli_help.py`\n" + proc.stderr[-3000:]
+    assert proc.returncode == 0, f"stale; run `python docs/{generator}`\n" + proc.stderr[-3000:]
