@@ -30,10 +30,8 @@ import warnings
 
 import numpy as np
 import open3d as o3d
-from scan_plan_table1 import WORKPIECES, view_poses
+from scan_plan_table1 import WORKPIECES, capture, mean_worst
 from scipy.spatial import cKDTree
-from weldcell.hal.sim.camera_model import RaycastCamera
-from weldcell.hal.sim.workpieces import make_workpiece
 from weldcell.plugins.scan_plan.job import evaluate
 from weldcell.plugins.scan_plan.reconstruct import reconstruct
 from weldcell.plugins.scan_plan.stages import (
@@ -45,31 +43,11 @@ from weldcell.plugins.scan_plan.stages import (
     TorchPathSettings,
 )
 from weldcell.sdk.cloud import PointCloud
-from weldcell.sdk.geometry import T_from_rotvec, pose_error, transform_points
-from weldcell.sdk.scan import PosedScan
+from weldcell.sdk.geometry import pose_error, transform_points
 from weldcell.sdk.weldpath import WeldPath
 
 ANCHORS = ("first", "mean", "hand-eye")
 ERRORS = {"1mm/0.3deg": (0.001, 0.3), "3mm/1deg": (0.003, 1.0), "none": (0.0, 0.0)}
-
-
-def capture(kind: str, seed: int, error: tuple[float, float], views: int = 8, low_views: int = 4):
-    """The Table I captures: (workpiece, true camera poses, scans, the hand-eye handed to reconstruct)."""
-    wp = make_workpiece(kind, **WORKPIECES[kind])
-    target = wp.seams_in_world()[0].points.mean(axis=0)
-    cam = RaycastCamera("realsense-d415", [wp])
-    rng = np.random.default_rng(seed)
-    # as scan_plan_table1.run_case: the flange is the true camera frame, the hand-eye in use is off
-    axis, direction = rng.normal(size=3), rng.normal(size=3)
-    T_fc = T_from_rotvec(
-        axis / np.linalg.norm(axis) * np.radians(error[1]), direction / np.linalg.norm(direction) * error[0]
-    )
-    truth, scans = [], []
-    for T_wc in view_poses(target, views, n_low=low_views):
-        img = cam.render(T_wc, rng=rng)
-        scans.append(PosedScan(PointCloud(img.to_points(), frame="camera"), T_wc, 0.0))
-        truth.append(T_wc)
-    return wp, truth, scans, T_fc
 
 
 def placement_error(rec, scans, truth) -> tuple[float, float]:
@@ -162,8 +140,7 @@ def table(rows: list, with_seam: bool) -> None:
         for a in ANCHORS:
 
             def stat(key: str, a: str = a, res: list = res, f: str = ".2f") -> str:
-                v = [r[a][key] for r in res]
-                return f"{statistics.mean(v):{f}} [{max(v):{f}}]"
+                return mean_worst((r[a][key] for r in res), f)
 
             cells = [
                 kind,

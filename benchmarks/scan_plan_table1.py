@@ -79,6 +79,35 @@ def view_poses(
     return out
 
 
+def capture(
+    kind: str, seed: int, error: tuple[float, float] = (0.0, 0.0), views: int = 8, low_views: int = 4
+) -> tuple:
+    """The Table I captures of ``kind``: (workpiece, true camera poses, scans, the hand-eye handed to
+    reconstruct). The "flange" is the true camera frame (T_base_flange = true camera pose); the hand-eye
+    is the identity, or off by ``error`` = (m, deg) about a random axis (drawn only then, so the
+    camera noise of an error-free capture is the same whatever errors other runs use)."""
+    wp = make_workpiece(kind, **WORKPIECES[kind])
+    target = wp.seams_in_world()[0].points.mean(axis=0)
+    cam = RaycastCamera("realsense-d415", [wp])
+    rng = np.random.default_rng(seed)
+    T_fc = np.eye(4)
+    if error[0] or error[1]:
+        axis, direction = rng.normal(size=3), rng.normal(size=3)
+        T_fc = T_from_rotvec(
+            axis / np.linalg.norm(axis) * np.radians(error[1]),
+            direction / np.linalg.norm(direction) * error[0],
+        )
+    poses = view_poses(target, views, n_low=low_views)
+    scans = [PosedScan(PointCloud(cam.render(T, rng=rng).to_points(), frame="camera"), T, 0.0) for T in poses]
+    return wp, poses, scans, T_fc
+
+
+def mean_worst(values, fmt: str = ".2f") -> str:
+    """``mean [worst]`` of a benchmark's per-seed values, as the tables print them."""
+    values = list(values)
+    return f"{statistics.mean(values):{fmt}} [{max(values):{fmt}}]"
+
+
 def run_case(
     kind: str,
     seed: int,
@@ -88,27 +117,12 @@ def run_case(
     anchor: str = "mean",
     prior: tuple[float, float] | None = None,
 ) -> dict:
-    wp = make_workpiece(kind, **WORKPIECES[kind])
-    seam = wp.seams_in_world()[0]
-    target = seam.points.mean(axis=0)
-    cam = RaycastCamera("realsense-d415", [wp])
-    rng = np.random.default_rng(seed)
-    # the "flange" is the true camera frame (T_base_flange = true camera pose); the hand-eye handed to
-    # reconstruct() is the identity, or off by 1 mm / 0.3 deg
-    T_fc = np.eye(4)
-    if hand_eye_error:
-        axis, direction = rng.normal(size=3), rng.normal(size=3)
-        T_fc = T_from_rotvec(
-            axis / np.linalg.norm(axis) * np.radians(0.3), direction / np.linalg.norm(direction) * 0.001
-        )
-    scans, viewpoints = [], []
     t_cap = time.perf_counter()
-    for T_wc in view_poses(target, views, n_low=low_views):
-        img = cam.render(T_wc, rng=rng)
-        cloud = PointCloud(img.to_points(), frame="camera")
-        scans.append(PosedScan(cloud, T_wc, 0.0))
-        viewpoints.append(T_wc[:3, 3].tolist())
+    error = (0.001, 0.3) if hand_eye_error else (0.0, 0.0)  # 1 mm / 0.3 deg
+    wp, poses, scans, T_fc = capture(kind, seed, error, views, low_views)
     t_cap = time.perf_counter() - t_cap
+    seam = wp.seams_in_world()[0]
+    viewpoints = [T[:3, 3].tolist() for T in poses]
     t0 = time.perf_counter()
     rec = reconstruct(
         scans, T_fc, voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor, prior=prior
@@ -213,8 +227,7 @@ def main() -> None:
         pd, po, pp, pt = PAPER[kind]
 
         def stat(key: str, res: list[dict] = res) -> str:
-            v = [r[key] for r in res]
-            return f"{statistics.mean(v):.2f} [{max(v):.2f}]"
+            return mean_worst(r[key] for r in res)
 
         print(
             f"| {kind} | {variant} | {statistics.mean(r['n_d'] for r in res):.0f} | "

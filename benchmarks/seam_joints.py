@@ -18,7 +18,7 @@ import statistics
 import time
 
 import numpy as np
-from scan_plan_table1 import view_poses
+from scan_plan_table1 import mean_worst, view_poses
 from weldcell.hal.sim.camera_model import RaycastCamera
 from weldcell.hal.sim.workpieces import make_workpiece
 from weldcell.plugins.scan_plan.denoise import voxel_downsample
@@ -107,8 +107,7 @@ def main() -> None:
     for kind, res in rows:
 
         def stat(key: str, res: list[dict] = res) -> str:
-            v = [r[key] for r in res]
-            return f"{statistics.mean(v):.2f} [{max(v):.2f}]"
+            return mean_worst(r[key] for r in res)
 
         print(
             f"| {kind} | {statistics.mean(r['seams'] for r in res):.1f} / {res[0]['true']} | "
