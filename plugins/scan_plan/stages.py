@@ -249,6 +249,12 @@ class EdgeSeamSettings(Settings):
     joints: tuple[str, ...] = Field(("concave", "groove"), description="which edge classes become seams")
     min_seam_length: Length = Field(0.02, gt=0, description="shorter seams are dropped [m]")
     spacing: Length | None = Field(None, gt=0, description="seam resampling step [m]; default r")
+    wall_radius: Length | None = Field(
+        None,
+        ge=0,
+        description="patch radius of the quadric wall fits that place curved and closed seams [m]; "
+        "default 4 x the 8 mm side-plane radius; 0 keeps the side planes",
+    )
 
 
 class EdgeSeamExtractor:
@@ -273,6 +279,7 @@ class EdgeSeamExtractor:
             joints=tuple(self.s.joints),
             min_seam_length=self.s.min_seam_length,
             spacing=self.s.spacing,
+            wall_radius=self.s.wall_radius,
             neighbours=table if shared else None,
             viewpoints=cloud.meta.get("viewpoints"),
         )
