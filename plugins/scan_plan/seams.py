@@ -73,6 +73,9 @@ CORE_FRACTION = 0.5
 TOE_INCLUDED = np.deg2rad(55.0)
 TOE_SHIFT = 3e-4
 TOE_RADIUS = 2.0 / 3.0
+#: a node whose side-radius planes leave out more than this fraction of its points as lying behind
+#: the other side's plane is a convex edge, not a joint (the Y-pipe's branch rim: 0.43; a lap joint: 0)
+CONVEX_DROPPED = 0.3
 #: below this many rows (a trace step) LAPACK's eigh is faster than the vectorised closed form
 SMALL_BATCH = 16
 #: at most this many points per node in the curved-wall fits (memory: nodes x points x 6 floats)
@@ -785,7 +788,13 @@ def _refine_nodes(
         P, N, tree, X, approach_radius, min_crease_angle, query=query
     )
     if approach_radius > side_radius:
-        Xs, As, ok_s, _, _ = _refine_on_sides(P, N, tree, X, side_radius, min_crease_angle, query=query)
+        Xs, As, ok_s, _, dropped_s = _refine_on_sides(
+            P, N, tree, X, side_radius, min_crease_angle, query=query
+        )
+        # a convex edge whose noise leaves a small concave lip (a pipe's end rim): most of the points
+        # lie behind the other side's plane even at the side radius, where a narrow face's third
+        # surface (the lap joint's upper plate, 12-15 % at the approach radius) is out of reach
+        ok &= dropped_s <= CONVEX_DROPPED
         both = ok & ok_s
         # an acute crease whose two position estimates disagree has curved walls (the Y-pipe's toe): its
         # plane intersection at side_radius still lies inside the curve: position from smaller planes
@@ -1581,6 +1590,10 @@ def chain_seams(
             sl = _trim_turning_ends(Xr)
             Xr, Ar = Xr[sl], Ar[sl]
         Xr, Ar = _resample(Xr, Ar, spacing, closed)  # smoothing moved the nodes: equal steps again
+        if not closed:  # a hook the resampling straightened into a fold (a traced end that turned back)
+            sl = _trim_turning_ends(Xr)
+            if sl != slice(0, len(Xr)):
+                Xr, Ar = _resample(Xr[sl], Ar[sl], spacing, closed)
         ring = np.vstack([Xr, Xr[:1]]) if closed else Xr
         length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
         if length < min_length or len(Xr) < 2:
