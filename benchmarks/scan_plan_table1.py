@@ -66,12 +66,12 @@ def view_poses(
     n_low: int = 0,
     low_elevation: float = 20.0,
 ) -> list[np.ndarray]:
-    """``n`` views on a ring around ``target``, ``n_low`` on a lower ring (``low_elevation``, azimuths
-    offset by half a step), plus one from straight above."""
+    """``n`` views on a ring around ``target``, ``n_low`` on a lower ring (``low_elevation``; both rings
+    start at azimuth 0, so 4 low views sit at 0, 90, 180 and 270 deg), plus one from straight above."""
     out = []
-    for k, el_deg, offset in ((n, elevation, 0.0), (n_low, low_elevation, np.pi / max(n_low, 1))):
+    for k, el_deg in ((n, elevation), (n_low, low_elevation)):
         el = np.radians(el_deg)
-        for az in np.linspace(0, 2 * np.pi, k, endpoint=False) + (offset if k != n_low else 0.0):
+        for az in np.linspace(0, 2 * np.pi, k, endpoint=False):
             eye = target + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
             out.append(look_at(eye, target))
     top = target + np.array([0.0, 0.0, distance])
