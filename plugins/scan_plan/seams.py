@@ -740,6 +740,29 @@ def _trim_turning_ends(X: np.ndarray, max_turn: float = np.deg2rad(30.0), max_no
     return slice(a, b)
 
 
+def _cut_end_corners(X: np.ndarray, max_turn: float = np.deg2rad(45.0), max_nodes: int = 10) -> slice:
+    """Slice without a short run at either end that meets the seam at a corner: where, within
+    ``max_nodes`` of the end, the direction turns by more than ``max_turn`` between the two-step chords
+    before and after a node (a trace that ran along the part's end before it found the joint: an L, not
+    a fold, which :func:`_trim_turning_ends` misses when the run is longer than its reference window).
+    Arcs turn by 2 x spacing / radius there: < 45 deg down to a radius of ~2.5 x spacing."""
+    n = len(X)
+    if n < 2 * max_nodes:
+        return slice(0, n)
+    cos = np.cos(max_turn)
+
+    def corner(idx: range) -> int | None:
+        for i in idx:
+            u, v = X[i] - X[i - 2], X[i + 2] - X[i]
+            if float(np.dot(u, v)) < cos * float(np.linalg.norm(u) * np.linalg.norm(v)):
+                return i
+        return None
+
+    a = corner(range(2, max_nodes))
+    b = corner(range(n - 3, n - max_nodes - 1, -1))
+    return slice(0 if a is None else a + 1, n if b is None else b)
+
+
 def _orient(
     X: np.ndarray, A: np.ndarray, closed: bool, min_curl: float = 0.02
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1590,8 +1613,11 @@ def chain_seams(
             sl = _trim_turning_ends(Xr)
             Xr, Ar = Xr[sl], Ar[sl]
         Xr, Ar = _resample(Xr, Ar, spacing, closed)  # smoothing moved the nodes: equal steps again
-        if not closed:  # a hook the resampling straightened into a fold (a traced end that turned back)
+        if not closed:  # a hook the resampling straightened into a fold, or an L (a traced end that turned)
             sl = _trim_turning_ends(Xr)
+            if sl != slice(0, len(Xr)):
+                Xr, Ar = _resample(Xr[sl], Ar[sl], spacing, closed)
+            sl = _cut_end_corners(Xr)
             if sl != slice(0, len(Xr)):
                 Xr, Ar = _resample(Xr[sl], Ar[sl], spacing, closed)
         ring = np.vstack([Xr, Xr[:1]]) if closed else Xr

@@ -13,6 +13,7 @@ from weldcell.plugins.scan_plan.seams import (
     CONVEX,
     GROOVE,
     SeamPolyline,
+    _cut_end_corners,
     _orient,
     _Piece,
     _unit,
@@ -706,3 +707,19 @@ def test_y_pipe_scanned_and_merged_like_table_1_is_one_seam_on_the_root():
     r = pose_rmse(frames, truth.points, truth.approach, truth.travel)
     assert r["translation_m"] < 2e-4
     assert np.degrees(r["rotation_rad"]) < 1.2
+
+
+def test_a_seam_end_that_ran_along_the_part_end_is_cut_at_the_corner():
+    """A 5-node run meeting the seam at 90 deg (a trace along the part's end before it found the joint;
+    the raw T-fillet of the threshold sweep started like this, 15 mm off) is cut at the corner; an arc
+    of 3 x the node spacing radius keeps all its nodes."""
+    step = 3e-3
+    run = np.c_[np.arange(-5, 0) * step, np.zeros(5), np.zeros(5)]
+    seam = np.c_[np.zeros(30), np.arange(0, 30) * step, np.zeros(30)]
+    X = np.vstack([run, seam])
+    sl = _cut_end_corners(X)
+    assert np.allclose(X[sl][0], [0.0, step, 0.0]) and sl.stop == len(X)
+    assert _cut_end_corners(X[::-1]) == slice(0, len(X) - 6)  # the same at the other end
+    t = np.arange(40) * (1 / 3.0)  # steps of 1/3 rad on a radius of 3 steps
+    arc = 3 * step * np.c_[np.cos(t), np.sin(t), np.zeros_like(t)]
+    assert _cut_end_corners(arc) == slice(0, len(arc))
