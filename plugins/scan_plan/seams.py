@@ -1613,11 +1613,9 @@ def chain_seams(
             sl = _trim_turning_ends(Xr)
             Xr, Ar = Xr[sl], Ar[sl]
         Xr, Ar = _resample(Xr, Ar, spacing, closed)  # smoothing moved the nodes: equal steps again
-        if not closed:  # a hook the resampling straightened into a fold, or an L (a traced end that turned)
-            sl = _trim_turning_ends(Xr)
-            if sl != slice(0, len(Xr)):
-                Xr, Ar = _resample(Xr[sl], Ar[sl], spacing, closed)
-            sl = _cut_end_corners(Xr)
+        # open ends again: a hook the resampling straightened into a fold, or an L (a trace that turned)
+        for cut in () if closed else (_trim_turning_ends, _cut_end_corners):
+            sl = cut(Xr)
             if sl != slice(0, len(Xr)):
                 Xr, Ar = _resample(Xr[sl], Ar[sl], spacing, closed)
         ring = np.vstack([Xr, Xr[:1]]) if closed else Xr

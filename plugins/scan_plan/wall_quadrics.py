@@ -139,11 +139,9 @@ def tangent_planes(
     this from a wall's plane a point is not on that wall; ``u_min``, ``tol``: see the module docstring.
     """
     t = _unit(np.cross(n_a, n_b))
-    A = np.stack([n_a, n_b], axis=1)
-    G = np.matmul(A, A.transpose(0, 2, 1))
-    G[np.abs(np.linalg.det(G)) < 1e-9] = np.eye(2)
-    c = np.einsum("bij,bi->bj", A, np.linalg.solve(G, np.stack([d_a, d_b], axis=1)[..., None])[..., 0])
-    bis = _dot(Q, _unit(n_a - n_b)) - np.einsum("ij,ij->i", c, _unit(n_a - n_b))[:, None]
+    c = _line_point(n_a, d_a, n_b, d_b)
+    m = _unit(n_a - n_b)
+    bis = _dot(Q, m) - np.einsum("ij,ij->i", c, m)[:, None]
     sigma = SIGMA_FRACTION * radius
     na2, pa, ok_a = _wall(Q, valid & (bis < 0), n_a, d_a, t, c, u_min, sigma, band, tol)
     nb2, pb, ok_b = _wall(Q, valid & (bis > 0), n_b, d_b, t, c, u_min, sigma, band, tol)
@@ -152,8 +150,15 @@ def tangent_planes(
 
 def crease_point(tp: TangentPlanes) -> np.ndarray:
     """The point of the two tangent planes' intersection line nearest the node (B, 3), relative to it."""
-    A = np.stack([tp.n_a, tp.n_b], axis=1)
-    r = np.stack([np.einsum("ij,ij->i", tp.n_a, tp.p_a), np.einsum("ij,ij->i", tp.n_b, tp.p_b)], axis=1)
+    d_a = np.einsum("ij,ij->i", tp.n_a, tp.p_a)
+    d_b = np.einsum("ij,ij->i", tp.n_b, tp.p_b)
+    return _line_point(tp.n_a, d_a, tp.n_b, d_b)
+
+
+def _line_point(n_a: np.ndarray, d_a: np.ndarray, n_b: np.ndarray, d_b: np.ndarray) -> np.ndarray:
+    """Per row, the point of the line where the planes ``n_a . x = d_a`` and ``n_b . x = d_b`` meet that
+    is nearest the origin (the minimum-norm solution; the origin where the planes are parallel)."""
+    A = np.stack([n_a, n_b], axis=1)
     G = np.matmul(A, A.transpose(0, 2, 1))
     G[np.abs(np.linalg.det(G)) < 1e-9] = np.eye(2)
-    return np.einsum("bij,bi->bj", A, np.linalg.solve(G, r[..., None])[..., 0])
+    return np.einsum("bij,bi->bj", A, np.linalg.solve(G, np.stack([d_a, d_b], axis=1)[..., None])[..., 0])
