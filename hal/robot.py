@@ -4,7 +4,10 @@ Adapters implement ``_read_state``, ``_move_linear``, ``_move_joint``, ``_follow
 ``_speed_linear`` and ``_stop`` in terms of **flange** poses in the robot base frame; the public
 methods take **TCP** poses (``T_base_tcp``; the TCP is the flange unless a tool offset is set),
 convert them, and refuse any command that fails the gate: a refused command never reaches the
-driver. In dry-run mode a command that passes the gate is logged in ``dry_run_log`` instead.
+driver, and nothing but :class:`~weldcell.sdk.errors.SafetyError` (or a device's own
+``DeviceError``) leaves a motion method. The driver gets validated values only: finite rigid 4x4
+flange poses, finite positive speeds, accelerations and durations, finite non-negative blends (see
+docs/safety.md). In dry-run mode a command that passes the gate is logged in ``dry_run_log`` instead.
 """
 
 from __future__ import annotations
@@ -19,8 +22,7 @@ from pydantic import Field
 from weldcell.hal.interfaces import INTERFACES
 from weldcell.hal.lifecycle import Device
 from weldcell.hal.readings import RobotState
-from weldcell.hal.safety import SafetyGate
-from weldcell.sdk.errors import DataError
+from weldcell.hal.safety import SafetyGate, as_number, as_pose
 from weldcell.sdk.geometry import T_from_rpy, invert
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Acceleration, Angle, AngularAcceleration, AngularSpeed, Length, Speed
@@ -100,6 +102,18 @@ class Robot(Device):
             return None
         return fn(**args)
 
+    def program_settings(self) -> dict[str, Any]:
+        """What a program exporter needs to write, and gate-check, a program for this robot: the model the
+        gate uses (``robot_model``), the tool (``tcp_xyz``, ``tcp_rpy``) and the cell's limits (``safety``).
+        Fill an exporter's settings with :func:`weldcell.sdk.settings.with_defaults`."""
+        model = getattr(self.gate.model, "name", None)
+        return {
+            "robot_model": model,
+            "tcp_xyz": tuple(self.motion.tcp_xyz),
+            "tcp_rpy": tuple(self.motion.tcp_rpy),
+            "safety": self.gate.limits,
+        }
+
     # -- motions ---------------------------------------------------------------------------------
     def move_linear(
         self, T_base_tcp: np.ndarray, speed: float | None = None, accel: float | None = None
@@ -109,61 +123,60 @@ class Robot(Device):
         speed = self.motion.speed if speed is None else speed
         accel = self.motion.accel if accel is None else accel
         st = self.state()
-        self.gate.check_linear(
-            st.T_base_tcp, T_base_tcp, self.T_flange_tcp, speed, accel, st.q, "linear move"
-        )
-        self._send(
-            "move_linear", self._move_linear, T_base_flange=self._flange(T_base_tcp), speed=speed, accel=accel
-        )
+        with self.gate.refusing("linear move"):
+            T = as_pose(T_base_tcp, "linear move target")
+            speed, accel = self.gate.check_speed(speed, accel)
+            self.gate.check_linear(st.T_base_tcp, T, self.T_flange_tcp, speed, accel, st.q, "linear move")
+            flange = self._flange(T)
+        self._send("move_linear", self._move_linear, T_base_flange=flange, speed=speed, accel=accel)
 
     def move_joint(self, q: np.ndarray, speed: float | None = None, accel: float | None = None) -> None:
         """Joint-space move to ``q`` (rad)."""
         self.require_active()
-        q = np.asarray(q, dtype=float)
         speed = self.motion.joint_speed if speed is None else speed
         accel = self.motion.joint_accel if accel is None else accel
-        self.gate.check_joint_speed(speed, accel)
-        self.gate.check_joints(q, "joint move target")
+        with self.gate.refusing("joint move"):
+            speed, accel = self.gate.check_joint_speed(speed, accel)
+            self.gate.check_joints(q, "joint move target")
+            q = np.array(q, dtype=float)
         if self.gate.model is not None:
             st = self.state()
-            for s in np.linspace(0.0, 1.0, 25):
-                qs = (1 - s) * st.q + s * q
-                T = self.gate.model.fk(qs) @ self.T_flange_tcp
-                self.gate.check_point(T[:3, 3], f"joint move at {100 * s:.0f}% of the motion")
+            self.gate.check_joint_move(st.q, q, self.T_flange_tcp, speed, accel, "joint move")
         self._send("move_joint", self._move_joint, q=q, speed=speed, accel=accel)
 
     def follow_path(
         self, poses: np.ndarray, speed: float | None = None, accel: float | None = None, blend: float = 0.0
     ) -> None:
-        """Follow TCP poses (K, 4, 4) in order with linear segments (blended by ``blend`` metres).
+        """Follow TCP poses (K, 4, 4) in order with linear segments (blended by ``blend`` metres: the
+        radius at each waypoint is at most 45 % of the shorter neighbouring segment, see
+        :func:`~weldcell.hal.safety.path_blends`).
 
         The whole path is checked, from the current pose, before anything is sent.
         """
         self.require_active()
-        poses = np.asarray(poses, dtype=float)
-        if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
-            raise DataError(
-                f"a path must be (K, 4, 4) TCP poses, got {poses.shape}", "pass a stack of 4x4 poses"
-            )
         speed = self.motion.speed if speed is None else speed
         accel = self.motion.accel if accel is None else accel
         st = self.state()
-        T_prev, q = st.T_base_tcp, st.q
-        for i, T in enumerate(poses):
-            q = self.gate.check_linear(T_prev, T, self.T_flange_tcp, speed, accel, q, f"path segment {i}")
-            T_prev = T
-        flange = np.stack([self._flange(T) for T in poses])
+        with self.gate.refusing("path"):
+            speed, accel = self.gate.check_speed(speed, accel)
+            blend = as_number(blend, "blend radius", unit="m", positive=False)
+            self.gate.check_path(st.T_base_tcp, poses, self.T_flange_tcp, speed, accel, blend, st.q, "path")
+            flange = np.stack([self._flange(T) for T in np.asarray(poses, dtype=float)])
         self._send("follow_path", self._follow_path, poses=flange, speed=speed, accel=accel, blend=blend)
 
     def speed_linear(self, twist: np.ndarray, accel: float | None = None, duration: float = 0.008) -> None:
-        """TCP velocity ``[vx, vy, vz, wx, wy, wz]`` (base frame) for ``duration`` seconds (servoing)."""
+        """TCP velocity ``[vx, vy, vz, wx, wy, wz]`` (base frame) for ``duration`` seconds (servoing).
+
+        The driver receives the equivalent constant flange twist; the gate checks the motion it makes
+        over exactly ``duration`` (see :meth:`~weldcell.hal.safety.SafetyGate.check_servo`).
+        """
         self.require_active()
         accel = self.motion.accel if accel is None else accel
         st = self.state()
-        self.gate.check_twist(twist, accel, st.T_base_tcp, max(duration, 0.05))
-        tw = np.asarray(twist, dtype=float).reshape(6).copy()
-        r = st.T_base_flange[:3, :3] @ self.T_flange_tcp[:3, 3]
-        tw[:3] = tw[:3] - np.cross(tw[3:], r)  # the TCP's twist expressed at the flange
+        with self.gate.refusing("velocity command"):
+            accel = as_number(accel, "acceleration", unit="m/s^2", positive=False)
+            duration = as_number(duration, "velocity command duration", unit="s")
+            tw = self.gate.check_servo(twist, accel, st.T_base_flange, st.q, self.T_flange_tcp, duration)
         self._send("speed_linear", self._speed_linear, twist=tw, accel=accel, duration=duration)
 
     def stop(self, decel: float | None = None) -> None:

@@ -1,24 +1,66 @@
 """The safety gate every motion command passes before it reaches a robot driver.
 
-It checks, in the robot base frame: the TCP stays inside the cell's workspace box along the whole
-motion; the target is within reach and has an inverse-kinematics solution inside the joint limits
-(when the robot's kinematic model is known); a linear motion has no unreachable stretch or branch
-flip; speeds and accelerations stay under the profile's caps. A failed check raises
-:class:`~weldcell.sdk.errors.SafetyError` saying which limit, by how much, and what to change.
+Order of work, for every command: (1) validate the inputs (finite numbers, 4x4 rigid transforms, joint
+vectors of the right length, positive durations/speeds, blends); (2) check the end points against the
+workspace box and reach, so that a target far away is refused in microseconds; (3) check the motion the
+driver will execute, conservatively where it can be bounded:
+
+* linear moves and path segments: the TCP moves on a straight line, so box and reach (convex sets) hold
+  along it when they hold at its ends; the joints are tracked continuously along the line (Newton steps
+  from the previous solution, adaptive steps of at most 0.02 rad per joint), inside their limits, and the
+  joint speed implied by the commanded TCP speed stays under the robot's hardware limits and the cell's
+  ``max_joint_speed``;
+* joint moves: straight lines in joint space; the TCP excursion between two checks is bounded by the
+  kinematic chain (``sum |dq_i| * lever_i``) and the motion is subdivided until that bound is inside the
+  margin to the box and reach sphere;
+* velocity (servo) commands: the constant flange twist the driver receives, integrated in closed form
+  over the actual duration (flange origin on a line, orientation ``exp([w] t) R0``), the TCP checked with
+  a bound on its speed between checks, joints tracked as for linear moves.
+
+A failed check raises :class:`~weldcell.sdk.errors.SafetyError` saying which limit, by how much, and what
+to change; anything unexpected inside the gate is turned into a refusal too (:meth:`SafetyGate.refusing`).
+See docs/safety.md for the guarantees and their limits.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any, Protocol
 
 import numpy as np
+from weldcell.hal.safety_inputs import (  # noqa: F401 - re-exported: part of the gate's public API
+    BLEND_FRACTION,
+    ORTHO_TOL,
+    ROW_TOL,
+    _log_rot,
+    _rodrigues,
+    as_joints,
+    as_number,
+    as_pose,
+    as_twist,
+    path_blends,
+    servo_flange_pose,
+)
 from weldcell.sdk.cell import SafetyLimits
-from weldcell.sdk.errors import SafetyError
-from weldcell.sdk.geometry import interpolate_poses, rotation_angle
+from weldcell.sdk.errors import SafetyError, WeldcellError
+from weldcell.sdk.geometry import invert
+
+DQ_STEP = 0.05  # rad: the largest joint change between two checks of a tracked motion
+ROT_STEP = 0.02  # rad: the largest TCP rotation between two checks
+MAX_CHECKS = 20000  # work bound per motion: refuse (and say so) rather than compute for ever
+MAX_PATH_POSES = 100000
+_TINY = 1e-9  # m: a step this short cannot be subdivided further
 
 
 class KinematicModel(Protocol):
-    """What the gate needs from a robot model (see :mod:`weldcell.hal.sim.kinematics`)."""
+    """What the gate needs from a robot model (see :mod:`weldcell.hal.sim.kinematics`).
+
+    Optional, used when present: ``jacobian(q)`` or ``fk_jacobian(q)`` (continuous tracking),
+    ``joint_speed_limits`` (rad/s), ``max_tcp_rot_speed`` (rad/s), ``joint_lever_bounds()``,
+    ``distance_from_shoulder(p)``.
+    """
 
     name: str
     reach: float
@@ -48,11 +90,54 @@ class SafetyGate:
             return self.limits.max_reach
         return None if self.model is None else float(self.model.reach)
 
+    @property
+    def joint_speed_limits(self) -> np.ndarray | None:
+        """Per-joint speed limits (rad/s) for Cartesian motions: the model's hardware limits capped by the
+        cell's ``max_joint_speed`` (None without a model)."""
+        if self.model is None:
+            return None
+        n = len(np.asarray(self.model.joint_limits))
+        hw = getattr(self.model, "joint_speed_limits", None)
+        hw = np.full(n, np.inf) if hw is None else np.asarray(hw, dtype=float)
+        return np.minimum(hw, self.limits.max_joint_speed)
+
+    @contextmanager
+    def refusing(self, what: str) -> Iterator[None]:
+        """Turn anything unexpected raised inside the block into a refusal (the command is not sent)."""
+        try:
+            with np.errstate(all="ignore"):
+                yield
+        except SafetyError:
+            raise
+        except WeldcellError as e:
+            raise SafetyError(f"{what} refused: {e.message}", e.fix or "check the command's inputs") from None
+        except (ArithmeticError, ValueError, TypeError, IndexError, np.linalg.LinAlgError, MemoryError) as e:
+            raise SafetyError(
+                f"{what} refused: the safety check could not be completed ({type(e).__name__}: {e})",
+                "check the command's inputs; report this if they are valid",
+            ) from None
+
     # -- single checks ---------------------------------------------------------------------------
+    def _distance(self, p: np.ndarray) -> tuple[float, str]:
+        dist_fn = (
+            getattr(self.model, "distance_from_shoulder", None) if self.limits.max_reach is None else None
+        )
+        if dist_fn is not None:
+            return float(dist_fn(p)), "shoulder"
+        return float(np.linalg.norm(p)), "base"
+
+    def margin(self, p: np.ndarray) -> float:
+        """Distance (m) from ``p`` to the edge of the allowed region (box and reach); < 0 outside."""
+        m = float(min(np.min(p - self.lo), np.min(self.hi - p)))
+        reach = self.reach
+        if reach is not None:
+            m = min(m, reach - self._distance(p)[0])
+        return m
+
     def check_point(self, p: np.ndarray, what: str = "target") -> None:
         """The TCP position ``p`` is inside the workspace box and within reach."""
-        p = np.asarray(p, dtype=float)
-        if not np.all(np.isfinite(p)):
+        p = np.asarray(p, dtype=float).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise SafetyError(f"{what} has a NaN or infinite coordinate", "check the command's source data")
         below, above = p < self.lo, p > self.hi
         if below.any() or above.any():
@@ -64,20 +149,20 @@ class SafetyGate:
                 "cell really allows it",
             )
         reach = self.reach
-        dist_fn = (
-            getattr(self.model, "distance_from_shoulder", None) if self.limits.max_reach is None else None
-        )
-        dist = float(dist_fn(p)) if dist_fn is not None else float(np.linalg.norm(p))
-        if reach is not None and dist > reach:
-            origin = "shoulder" if dist_fn is not None else "base"
-            raise SafetyError(
-                f"{what} {_fmt(p)} is {dist:.3f} m from the robot's {origin}, beyond its reach of "
-                f"{reach:.3f} m",
-                "bring the part closer to the robot or choose a robot with more reach",
-            )
+        if reach is not None:
+            dist, origin = self._distance(p)
+            if dist > reach:
+                raise SafetyError(
+                    f"{what} {_fmt(p)} is {dist:.3f} m from the robot's {origin}, beyond its reach of "
+                    f"{reach:.3f} m",
+                    "bring the part closer to the robot or choose a robot with more reach",
+                )
 
-    def check_speed(self, speed: float, accel: float) -> None:
+    def check_speed(self, speed: Any, accel: Any) -> tuple[float, float]:
+        """TCP speed and acceleration: finite, positive, under the cell's caps. Returns them as floats."""
         lim = self.limits
+        speed = as_number(speed, "TCP speed", unit="m/s", positive=False)
+        accel = as_number(accel, "TCP acceleration", unit="m/s^2", positive=False)
         if not (0 < speed <= lim.max_linear_speed):
             raise SafetyError(
                 f"TCP speed {speed:.4g} m/s is not within (0, {lim.max_linear_speed:.4g}] m/s "
@@ -89,9 +174,13 @@ class SafetyGate:
                 f"TCP acceleration {accel:.4g} m/s^2 is not within (0, {lim.max_linear_accel:.4g}] m/s^2",
                 "lower the acceleration, or raise [cell.safety] max_linear_accel",
             )
+        return speed, accel
 
-    def check_joint_speed(self, speed: float, accel: float) -> None:
+    def check_joint_speed(self, speed: Any, accel: Any) -> tuple[float, float]:
+        """Joint speed and acceleration of a joint move: finite, positive, under the cell's caps."""
         lim = self.limits
+        speed = as_number(speed, "joint speed", unit="rad/s", positive=False)
+        accel = as_number(accel, "joint acceleration", unit="rad/s^2", positive=False)
         if not (0 < speed <= lim.max_joint_speed):
             raise SafetyError(
                 f"joint speed {speed:.4g} rad/s is not within (0, {lim.max_joint_speed:.4g}] rad/s",
@@ -103,12 +192,13 @@ class SafetyGate:
                 f"(0, {lim.max_joint_accel:.4g}] rad/s^2",
                 "lower the acceleration, or raise [cell.safety] max_joint_accel",
             )
+        return speed, accel
 
     def check_joints(self, q: np.ndarray, what: str = "target") -> None:
-        """Joint positions inside the model's limits."""
+        """Joint positions finite and inside the model's limits."""
+        q = as_joints(q, None, what)
         if self.model is None:
             return
-        q = np.asarray(q, dtype=float)
         lim = np.asarray(self.model.joint_limits, dtype=float)
         if q.shape != (len(lim),):
             raise SafetyError(
@@ -130,52 +220,356 @@ class SafetyGate:
         """IK within limits (None when there is no model). SafetyError when there is no solution."""
         if self.model is None:
             return None
-        try:
-            q = self.model.ik(T_base_flange, q_seed)
-        except SafetyError as e:
-            raise SafetyError(f"{what}: {e.message}", e.fix or "choose a reachable target") from None
+        T = as_pose(T_base_flange, what)
+        with self.refusing(what):
+            try:
+                q = self.model.ik(T, q_seed)
+            except SafetyError as e:
+                raise SafetyError(f"{what}: {e.message}", e.fix or "choose a reachable target") from None
         self.check_joints(q, what)
-        return q
+        return np.asarray(q, dtype=float)
 
-    # -- whole motions ---------------------------------------------------------------------------
     def check_pose(self, T_base_tcp: np.ndarray, T_base_flange: np.ndarray, q_seed=None, what="target"):
         """A single target pose: box, reach and IK. Returns the joint solution (or None)."""
-        T = np.asarray(T_base_tcp, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise SafetyError(f"{what} is not a finite 4x4 transform", "pass T_base_tcp as a 4x4 matrix")
+        T = as_pose(T_base_tcp, what)
         self.check_point(T[:3, 3], what)
         return self.solve(T_base_flange, q_seed, what)
 
-    def check_linear(self, T0_tcp, T1_tcp, T_flange_tcp, speed, accel, q_seed=None, what="linear move"):
-        """A straight TCP line from ``T0`` to ``T1``: every ``path_check_step`` inside the box with a
-        continuous IK solution (no joint jump over 0.35 rad between checks). Returns the final joints."""
-        self.check_speed(speed, accel)
-        T0, T1 = np.asarray(T0_tcp, dtype=float), np.asarray(T1_tcp, dtype=float)
-        dist = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
-        ang = rotation_angle(T0[:3, :3].T @ T1[:3, :3])
-        n = max(2, int(np.ceil(max(dist / self.limits.path_check_step, ang / 0.02))) + 1)
-        inv_tcp = np.linalg.inv(T_flange_tcp)
-        q = q_seed
-        for i, T in enumerate(interpolate_poses(T0, T1, np.linspace(0.0, 1.0, n))):
-            where = f"{what} at {100.0 * i / (n - 1):.0f}% of the path"
-            self.check_point(T[:3, 3], where)
-            if i == 0 and q_seed is not None:
-                continue  # the start is the robot's current pose, whose joints are q_seed
-            q_new = self.solve(T @ inv_tcp, q, where)
-            if q is not None and q_new is not None and np.max(np.abs(q_new - q)) > 0.35:
-                raise SafetyError(
-                    f"{where}: the joints would jump by {np.degrees(np.max(np.abs(q_new - q))):.0f} deg "
-                    "(near a singularity or a change of arm configuration)",
+    # -- shared machinery ------------------------------------------------------------------------
+    def _budget(self, n: int, what: str) -> None:
+        if n > MAX_CHECKS:
+            raise SafetyError(
+                f"{what}: the motion could not be verified within {MAX_CHECKS} checks (it runs very close "
+                "to the workspace edge, a singularity, or is very long)",
+                "split it into shorter motions, or keep it further from the workspace edge",
+            )
+
+    def _sweep(self, pos_at: Callable[[float], np.ndarray], lipschitz: float, label: Callable[[float], str]):
+        """Prove a TCP curve ``p(s)``, ``s`` in [0, 1], stays in the box and reach: ``|dp/ds| <= lipschitz``,
+        so between two checks a and b it stays inside when ``lipschitz * (b - a) <= margin_a + margin_b``;
+        subdivide until it does. A check outside raises at that point."""
+        s, p = 0.0, pos_at(0.0)
+        self.check_point(p, label(0.0))
+        m_a, h, n = self.margin(p), 1.0, 0
+        while s < 1.0:
+            n += 1
+            self._budget(n, label(s))
+            h = min(h, 1.0 - s)
+            b = 1.0 if s + h >= 1.0 - 1e-15 else s + h
+            p = pos_at(b)
+            self.check_point(p, label(b))
+            m_b = self.margin(p)
+            if lipschitz * h > m_a + m_b and lipschitz * h > _TINY:
+                h /= 2.0
+                continue
+            s, m_a, h = b, m_b, 2.0 * h
+
+    def _fkj(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = self.model
+        fkj = getattr(m, "fk_jacobian", None)
+        if fkj is not None:
+            return fkj(q)
+        if not hasattr(m, "jacobian"):
+            raise SafetyError(
+                f"the {m.name} kinematic model has no Jacobian, so the gate cannot follow the joints along "
+                "the motion",
+                "give the model a jacobian(q) method (see weldcell.hal.sim.kinematics.RobotModel)",
+            )
+        return m.fk(q), m.jacobian(q)
+
+    def _newton(self, T: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Joints reaching flange pose ``T`` continuously from ``q`` (a few Newton steps) and the Jacobian
+        there, or None."""
+        for _ in range(8):
+            F, J = self._fkj(q)
+            e = np.concatenate([T[:3, 3] - F[:3, 3], _log_rot(T[:3, :3] @ F[:3, :3].T)])
+            if float(np.max(np.abs(e))) < 1e-9:
+                return q, J
+            dq = np.linalg.lstsq(J, e, rcond=1e-10)[0]
+            step = float(np.max(np.abs(dq))) if np.all(np.isfinite(dq)) else math.inf
+            if step > 0.5:
+                return None
+            q = q + dq
+            if step < 1e-9:  # quadratic convergence: the remaining error is ~step^2
+                return q, J
+        return None
+
+    def _joint_rates(self, J: np.ndarray, twist: np.ndarray) -> np.ndarray:
+        """Joint velocities (per unit of the path parameter) that give the flange ``twist`` at ``J``."""
+        with np.errstate(all="ignore"):
+            u = np.linalg.lstsq(J, twist, rcond=1e-12)[0]
+        return np.where(np.isfinite(u), u, np.inf)
+
+    def _track(
+        self,
+        flange_at: Callable[[float], np.ndarray],
+        twist_at: Callable[[float, np.ndarray], np.ndarray],
+        q0: np.ndarray,
+        h0: float,
+        sdot: float,
+        scale: float,
+        label: Callable[[float], str],
+    ) -> np.ndarray:
+        """Track the joints along a flange curve ``s -> T(s)`` from ``q0`` and return the final joints.
+
+        ``twist_at(s, T)`` is the flange twist ``dT/ds`` (base frame, origin velocity and angular
+        velocity), ``sdot`` the path rate (1/s) and ``scale`` the Cartesian size of the curve. Steps of at
+        most ``DQ_STEP`` rad per joint (halved until they are); each solution inside the joint limits;
+        the joint speeds, exact at every check (``J^+ twist * sdot``) and as the mean over each step,
+        under :attr:`joint_speed_limits`; steps refined where the speed has an interior peak or changes
+        fast near the limit.
+        """
+        lim = np.asarray(self.model.joint_limits, dtype=float)
+        vmax = self.joint_speed_limits
+        s, q, h, n = 0.0, q0, min(1.0, h0), 0
+        slope = np.zeros_like(q0)  # dq/ds of the last step: the predictor
+        F0, J0 = self._fkj(q0)
+        u_a = self._joint_rates(J0, twist_at(0.0, F0)) * sdot
+        self._check_rates(np.abs(u_a), vmax, label(0.0))
+        while s < 1.0:
+            n += 1
+            self._budget(n, label(s))
+            h = min(h, 1.0 - s)
+            b = 1.0 if s + h >= 1.0 - 1e-15 else s + h
+            T = flange_at(b)
+            got = self._newton(T, q + slope * (b - s))
+            if got is None and np.any(slope):
+                got = self._newton(T, q)
+            dq = None if got is None else np.abs(got[0] - q)
+            small = (b - s) * scale <= _TINY
+            if dq is None or float(np.max(dq)) > DQ_STEP:
+                if not small:
+                    h /= 2.0
+                    continue
+                self.solve(T, q, label(b))  # the precise reason when the pose is unreachable ...
+                raise SafetyError(  # ... else the arm would have to jump to another configuration
+                    f"{label(b)}: the joints would jump (a singularity or a change of arm configuration)",
                     "split the motion with a joint move, or change the approach orientation",
                 )
-            q = q_new
+            qb, Jb = got
+            u_b = self._joint_rates(Jb, twist_at(b, T)) * sdot
+            mean = (qb - q) / (b - s) * sdot
+            ends = np.maximum(np.abs(u_a), np.abs(u_b))
+            peak = np.maximum(ends, np.abs(mean))  # the mean over the step is a lower bound of its peak
+            bump = np.abs(mean) > ends + 0.01 * vmax  # the speed peaks inside the step
+            steep = (np.abs(u_b - u_a) > 0.1 * vmax) & (ends > 0.5 * vmax)
+            if (
+                np.all(peak <= vmax)
+                and np.any(bump | steep)
+                and float(np.max(dq)) > DQ_STEP / 32
+                and not small
+            ):
+                h /= 2.0  # resolve the peak finely before judging it
+                continue
+            self._check_rates(peak, vmax, label(b))
+            out = np.nonzero((qb < lim[:, 0] - 1e-9) | (qb > lim[:, 1] + 1e-9))[0]
+            if len(out):
+                j = int(out[0])
+                raise SafetyError(
+                    f"{label(b)}: joint {j + 1} would reach {np.degrees(qb[j]):.1f} deg, outside its limits "
+                    f"[{np.degrees(lim[j, 0]):.1f}, {np.degrees(lim[j, 1]):.1f}] deg",
+                    "choose another configuration or path",
+                )
+            slope, u_a = (qb - q) / (b - s), u_b
+            s, q = b, qb
+            h = min(h0, 2.0 * h) if float(np.max(dq)) < DQ_STEP / 4 else h
         return q
 
+    @staticmethod
+    def _check_rates(rate: np.ndarray, vmax: np.ndarray, where: str) -> None:
+        bad = np.nonzero(rate > vmax)[0]
+        if len(bad):
+            j = int(bad[0])
+            speed = f"{np.degrees(rate[j]):.0f} deg/s" if np.isfinite(rate[j]) else "unbounded speed"
+            raise SafetyError(
+                f"{where}: joint {j + 1} would turn at {speed}, over its limit of {np.degrees(vmax[j]):.0f} "
+                "deg/s (near a singularity, or too fast)",
+                "lower the speed, or avoid the singular configuration (change the tool orientation or "
+                "the path), or raise [cell.safety] max_joint_speed within the robot's hardware limits",
+            )
+
+    # -- whole motions ---------------------------------------------------------------------------
+    def check_linear(self, T0_tcp, T1_tcp, T_flange_tcp, speed, accel, q_seed=None, what="linear move"):
+        """A straight TCP line from ``T0`` to ``T1`` (slerped orientation) at ``speed``.
+
+        Inputs validated; both ends inside the box and reach (convex, so the whole line is); with a model,
+        the joints tracked continuously along the line inside their limits and under the joint speed
+        limits at the commanded TCP speed. Returns the final joints (None without a model).
+        """
+        with self.refusing(what):
+            speed, accel = self.check_speed(speed, accel)
+            T0 = as_pose(T0_tcp, f"{what} start")
+            T1 = as_pose(T1_tcp, f"{what} target")
+            T_ft = as_pose(T_flange_tcp, "tool offset (T_flange_tcp)")
+            p0, p1 = T0[:3, 3], T1[:3, 3]
+            self.check_point(p0, f"{what} start (the current TCP)")
+            self._check_line_ends(p0, p1, what)
+            if self.model is None:
+                return None
+            n_joints = len(np.asarray(self.model.joint_limits))
+            q = as_joints(q_seed, n_joints, f"{what} start joints") if q_seed is not None else None
+            inv_ft = invert(T_ft)
+            if q is None:
+                q = self.solve(T0 @ inv_ft, None, f"{what} at 0% of the path")
+            dist = float(np.linalg.norm(p1 - p0))
+            rv = _log_rot(T0[:3, :3].T @ T1[:3, :3])
+            ang = float(np.linalg.norm(rv))
+            self._check_flange_line(T0, T1, T_ft, ang, what)
+            if dist < 1e-12 and ang < 1e-12:
+                self.check_joints(q, f"{what} start joints")
+                return q
+            w_max = float(getattr(self.model, "max_tcp_rot_speed", self.limits.max_angular_speed))
+            sdot = min(speed / dist if dist > 1e-12 else math.inf, w_max / ang if ang > 1e-12 else math.inf)
+            h0 = min(1.0, self.limits.path_check_step / max(dist, 1e-12), ROT_STEP / max(ang, 1e-12))
+
+            def flange_at(s: float) -> np.ndarray:
+                T = np.eye(4)
+                T[:3, :3] = T0[:3, :3] @ _rodrigues(rv, s)
+                T[:3, 3] = (1.0 - s) * p0 + s * p1
+                return T @ inv_ft
+
+            w_unit = T0[:3, :3] @ rv  # angular velocity per unit s (constant for a slerp)
+
+            def twist_at(s: float, F: np.ndarray) -> np.ndarray:
+                p_tcp = (1.0 - s) * p0 + s * p1
+                return np.concatenate([p1 - p0 + np.cross(w_unit, F[:3, 3] - p_tcp), w_unit])
+
+            def label(s: float) -> str:
+                return f"{what} at {100.0 * s:.0f}% of the path"
+
+            return self._track(flange_at, twist_at, q, h0, sdot, dist + 0.1 * ang, label)
+
+    def _check_flange_line(self, T0: np.ndarray, T1: np.ndarray, T_ft: np.ndarray, ang: float, what: str):
+        """A controller that interpolates the flange (what the driver receives) instead of the TCP moves
+        the TCP off the straight TCP line by at most ``|r| (1 - cos(ang / 2))`` (``r`` the tool offset):
+        when both ends keep that margin the whole line does (margins are concave), else sweep that curve."""
+        r = float(np.linalg.norm(T_ft[:3, 3]))
+        dev = r * (1.0 - math.cos(ang / 2.0))
+        if dev <= 0.0 or min(self.margin(T0[:3, 3]), self.margin(T1[:3, 3])) >= dev:
+            return
+        inv_ft = invert(T_ft)
+        F0, F1 = T0 @ inv_ft, T1 @ inv_ft
+        rv = _log_rot(F0[:3, :3].T @ F1[:3, :3])
+        r_f = T_ft[:3, 3]
+
+        def pos_at(s: float) -> np.ndarray:
+            return (1.0 - s) * F0[:3, 3] + s * F1[:3, 3] + F0[:3, :3] @ _rodrigues(rv, s) @ r_f
+
+        lip = float(np.linalg.norm(F1[:3, 3] - F0[:3, 3])) + ang * r
+        self._sweep(pos_at, lip, lambda s: f"{what} at {100.0 * s:.0f}% of the path (tool swinging round)")
+
+    def _exit_fraction(self, p0: np.ndarray, d: np.ndarray) -> float:
+        """Fraction of the segment ``p0 + s d`` (``p0`` inside) where it leaves the box or reach ball."""
+        s_exit = 1.0
+        for i in range(3):
+            if d[i] > 0:
+                s_exit = min(s_exit, (self.hi[i] - p0[i]) / d[i])
+            elif d[i] < 0:
+                s_exit = min(s_exit, (self.lo[i] - p0[i]) / d[i])
+        reach = self.reach
+        if reach is not None:
+            centre = np.zeros(3)
+            if self.limits.max_reach is None and hasattr(self.model, "distance_from_shoulder"):
+                centre = np.asarray(getattr(self.model, "shoulder", centre), dtype=float)
+            f = p0 - centre
+            a, b, c = float(d @ d), 2.0 * float(f @ d), float(f @ f) - reach * reach
+            disc = b * b - 4.0 * a * c
+            if a > 0 and disc >= 0:
+                s_exit = min(s_exit, (-b + math.sqrt(disc)) / (2.0 * a))
+        return max(0.0, s_exit)
+
+    def _check_line_ends(self, p0: np.ndarray, p1: np.ndarray, what: str) -> None:
+        """The target of a straight line; when it is outside, name where the line leaves (first check
+        point beyond the edge, at ``path_check_step`` spacing)."""
+        if self.margin(p1) >= 0:
+            self.check_point(p1, f"{what} target")
+            return
+        d = p1 - p0
+        lo_s = self._exit_fraction(p0, d)
+        dist = float(np.linalg.norm(d))
+        n = max(1, math.ceil(dist / self.limits.path_check_step)) if dist < 1e6 else 1
+        for s in (math.ceil(lo_s * n + 1e-12) / n, 1.0):
+            s = min(1.0, max(s, lo_s))
+            self.check_point(p0 + s * d, f"{what} at {100.0 * s:.0f}% of the path")
+        self.check_point(p1, f"{what} target")
+
+    def check_joint_move(self, q0, q1, T_flange_tcp, speed, accel, what="joint move") -> np.ndarray:
+        """A straight joint-space move ``q0 -> q1``: caps, limits, and the TCP provably inside the box and
+        reach all along (chain bound between checks). Returns ``q1`` validated."""
+        with self.refusing(what):
+            speed, _ = self.check_joint_speed(speed, accel)
+            hw = None if self.model is None else getattr(self.model, "joint_speed_limits", None)
+            if hw is not None and speed > float(np.min(hw)):
+                raise SafetyError(
+                    f"joint speed {speed:.4g} rad/s is over the {self.model.name}'s slowest joint's hardware "
+                    f"limit of {float(np.min(hw)):.4g} rad/s (the leading joint may be any joint)",
+                    "lower the joint speed",
+                )
+            n = None if self.model is None else len(np.asarray(self.model.joint_limits))
+            q1 = as_joints(q1, n, f"{what} target")
+            self.check_joints(q1, f"{what} target")
+            if self.model is None:
+                return q1
+            q0 = as_joints(q0, n, f"{what} start joints")
+            T_ft = as_pose(T_flange_tcp, "tool offset (T_flange_tcp)")
+            r = float(np.linalg.norm(T_ft[:3, 3]))
+            lever_fn = getattr(self.model, "joint_lever_bounds", None)
+            if lever_fn is not None:
+                lever = np.asarray(lever_fn(), dtype=float) + r
+            else:  # no chain bound: the model's reach bound for every joint (conservative)
+                lever = np.full(n, float(getattr(self.model, "max_reach_bound", 2.0 * self.model.reach)) + r)
+            dq = q1 - q0
+            L = float(np.sum(np.abs(dq) * lever))
+            self._sweep(
+                lambda s: (self.model.fk(q0 + s * dq) @ T_ft)[:3, 3],
+                L,
+                lambda s: f"{what} at {100.0 * s:.0f}% of the motion",
+            )
+            return q1
+
+    def check_path(self, T_start_tcp, poses, T_flange_tcp, speed, accel, blend, q_seed=None, what="path"):
+        """A path of straight segments through ``poses`` (K, 4, 4) from the current TCP pose, blended by
+        ``blend`` m (finite, >= 0; clipped per waypoint by :func:`path_blends`). Returns the final joints."""
+        with self.refusing(what):
+            try:
+                P = np.array(poses, dtype=float)
+            except (TypeError, ValueError, OverflowError):
+                P = None
+            if (P is None or P.ndim != 3) and isinstance(poses, list | tuple):
+                for i, T in enumerate(poses):  # name the pose that is wrong
+                    as_pose(T, f"{what} pose {i}")
+            if P is None:
+                raise SafetyError(f"{what} is not an array of 4x4 poses", "pass a (K, 4, 4) array")
+            if P.ndim != 3 or P.shape[1:] != (4, 4) or not 0 < len(P) <= MAX_PATH_POSES:
+                raise SafetyError(
+                    f"{what} must be (K, 4, 4) TCP poses with 1 <= K <= {MAX_PATH_POSES}, got {P.shape}",
+                    "pass a stack of 4x4 poses",
+                )
+            blend = as_number(blend, "blend radius", unit="m", positive=False)
+            self.check_speed(speed, accel)
+            for i, T in enumerate(P):
+                as_pose(T, f"{what} pose {i}")
+            for i, T in enumerate(P):
+                self.check_point(T[:3, 3], f"{what} pose {i}")  # every waypoint first: cheap, bounds the work
+            T_prev, q = T_start_tcp, q_seed
+            for i, T in enumerate(P):
+                q = self.check_linear(T_prev, T, T_flange_tcp, speed, accel, q, f"{what} segment {i}")
+                T_prev = T
+            return q
+
     def check_twist(self, twist: np.ndarray, accel: float, T_base_tcp: np.ndarray, horizon: float) -> None:
-        """A TCP velocity command ``[vx, vy, vz, wx, wy, wz]`` held for ``horizon`` seconds."""
-        tw = np.asarray(twist, dtype=float).reshape(6)
-        if not np.all(np.isfinite(tw)):
-            raise SafetyError("velocity command has NaN or infinite values", "check the servo's inputs")
+        """Quick check of a TCP velocity command ``[vx, vy, vz, wx, wy, wz]`` (for servo loops): inputs,
+        caps, and the TCP moving at ``v`` for ``horizon`` s inside the box. ``Robot.speed_linear`` checks the
+        full motion (:meth:`check_servo`)."""
+        with self.refusing("velocity command"):
+            tw = self._twist_caps(twist, accel)
+            horizon = as_number(horizon, "velocity command duration", unit="s")
+            p = as_pose(T_base_tcp, "current TCP pose")[:3, 3]
+            self.check_point(p + tw[:3] * horizon, f"velocity command (TCP after {horizon:.3g} s)")
+
+    def _twist_caps(self, twist: Any, accel: Any) -> np.ndarray:
+        tw = as_twist(twist)
+        accel = as_number(accel, "acceleration", unit="m/s^2", positive=False)
         v, w = float(np.linalg.norm(tw[:3])), float(np.linalg.norm(tw[3:]))
         if v > self.limits.max_linear_speed:
             raise SafetyError(
@@ -193,5 +587,74 @@ class SafetyGate:
                 f"acceleration {accel:.4g} m/s^2 is not within (0, {self.limits.max_linear_accel}]",
                 "lower the acceleration",
             )
-        p_next = np.asarray(T_base_tcp)[:3, 3] + tw[:3] * horizon
-        self.check_point(p_next, f"velocity command (TCP after {horizon:.3g} s)")
+        return tw
+
+    def _servo_tcp_speed(self, ftw: np.ndarray, r: np.ndarray, duration: float) -> None:
+        """The TCP speed ``|v + w x r(t)|`` stays under the cap while the tool offset ``r`` turns (it is the
+        commanded speed only at t = 0). Sampled over the swept angle with the sampling error added."""
+        v, w = ftw[:3], ftw[3:]
+        wn = float(np.linalg.norm(w))
+        k = w / wn
+        swept = min(wn * duration, 2.0 * math.pi)
+        n = 2000
+        phi = np.linspace(0.0, swept, n + 1)
+        K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        rs = r[None] + np.sin(phi)[:, None] * (K @ r)[None] + (1.0 - np.cos(phi))[:, None] * (K @ K @ r)[None]
+        speeds = np.linalg.norm(v[None] + np.cross(w[None], rs), axis=1)
+        c = wn * float(np.linalg.norm(np.cross(k, r)))  # |d speed / d phi| <= c
+        peak = float(speeds.max()) + c * swept / n / 2.0
+        if peak > self.limits.max_linear_speed:
+            raise SafetyError(
+                f"velocity command: the TCP would reach {peak:.4g} m/s while the tool turns (cap "
+                f"{self.limits.max_linear_speed:.4g} m/s): the command fixes the flange's twist, so the tool "
+                "offset swings round",
+                "shorten the command's duration (re-send it every cycle), or lower the angular velocity",
+            )
+
+    def check_servo(self, twist, accel, T_base_flange, q, T_flange_tcp, duration) -> np.ndarray:
+        """A TCP twist ``[v, w]`` (base frame, ``v`` the TCP's velocity now) held for ``duration`` s.
+
+        The driver receives the equivalent constant **flange** twist ``[v - w x r, w]`` (returned): its
+        origin moves on a line while the orientation turns, so the TCP sweeps a curve. That curve is
+        checked over the actual duration: the TCP provably inside box and reach (speed bound between
+        checks), joints tracked inside their limits and under their speed limits.
+        """
+        with self.refusing("velocity command"):
+            tw = self._twist_caps(twist, accel)
+            duration = as_number(duration, "velocity command duration", unit="s")
+            F0 = as_pose(T_base_flange, "current flange pose")
+            T_ft = as_pose(T_flange_tcp, "tool offset (T_flange_tcp)")
+            r = F0[:3, :3] @ T_ft[:3, 3]
+            ftw = tw.copy()
+            ftw[:3] = tw[:3] - np.cross(tw[3:], r)  # the TCP's twist expressed at the flange
+            v, w = float(np.linalg.norm(ftw[:3])), float(np.linalg.norm(ftw[3:]))
+            tcp_speed = v + w * float(np.linalg.norm(r))  # bound on the TCP speed along the whole motion
+            if tcp_speed > self.limits.max_linear_speed:
+                self._servo_tcp_speed(ftw, r, duration)
+
+            def label(s: float) -> str:
+                return f"velocity command (TCP after {s * duration:.3g} s of {duration:.3g} s)"
+
+            self._sweep(
+                lambda s: (servo_flange_pose(F0, ftw, s * duration) @ T_ft)[:3, 3],
+                tcp_speed * duration,
+                label,
+            )
+            if self.model is not None and (v > 0 or w > 0):
+                n = len(np.asarray(self.model.joint_limits))
+                q = as_joints(q, n, "current joints")
+                h0 = min(
+                    1.0,
+                    self.limits.path_check_step / max(tcp_speed * duration, 1e-12),
+                    ROT_STEP / max(w * duration, 1e-12),
+                )
+                self._track(
+                    lambda s: servo_flange_pose(F0, ftw, s * duration),
+                    lambda s, F: ftw * duration,
+                    q,
+                    h0,
+                    1.0 / duration,
+                    tcp_speed * duration + 0.1 * w * duration,
+                    label,
+                )
+            return ftw

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from pydantic import Field, model_validator
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Acceleration, AngularAcceleration, AngularSpeed, Length, Speed
@@ -27,10 +29,20 @@ class SafetyLimits(Settings):
         description="TCP distance from the base axis above which a target is refused [m]; "
         "default: the robot model's reach",
     )
-    path_check_step: Length = Field(0.005, gt=0, description="spacing of the checks along a linear path [m]")
+    path_check_step: Length = Field(
+        0.005, ge=1e-4, le=0.1, description="largest spacing of the checks along a linear path [m]"
+    )
 
     @model_validator(mode="after")
     def _box_ordered(self) -> SafetyLimits:
+        for name in type(self).model_fields:
+            value = getattr(self, name)
+            values = value if isinstance(value, tuple) else (value,)
+            if any(v is not None and not math.isfinite(v) for v in values):
+                raise ValueError(
+                    f"{name} must be finite, got {value!r}: a NaN or infinite limit would disable the check; "
+                    "give a finite value with its unit"
+                )
         for axis, lo, hi in zip("xyz", self.workspace_min, self.workspace_max, strict=True):
             if lo >= hi:
                 raise ValueError(f"workspace_min.{axis} ({lo}) must be below workspace_max.{axis} ({hi})")

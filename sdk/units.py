@@ -52,7 +52,7 @@ def parse_quantity(value: object, dimension: str) -> float:
     if isinstance(value, bool):
         raise ValueError(f"expected a {dimension} ({SI[dimension]}), got a boolean")
     if isinstance(value, int | float):
-        return float(value)
+        return _finite(float(value), value, dimension)
     if isinstance(value, str):
         m = _QUANTITY.match(value)
         if not m:
@@ -63,8 +63,15 @@ def parse_quantity(value: object, dimension: str) -> float:
             raise ValueError(
                 f"{value!r}: '{unit}' is not a unit of {dimension}; use one of {', '.join(table)}"
             )
-        return number * table[unit]
+        return _finite(number * table[unit], value, dimension)
     raise ValueError(f"expected a {dimension} as a number ({SI[dimension]}) or a string with units")
+
+
+def _finite(v: float, given: object, dimension: str) -> float:
+    """A quantity must be finite: NaN or infinity (or ``1e400 m``) would disable the check it feeds."""
+    if not math.isfinite(v):
+        raise ValueError(f"{given!r} is not a finite {dimension}; give a number in {SI[dimension]}")
+    return v
 
 
 def _quantity(dimension: str):

@@ -12,6 +12,11 @@ fixture that returns a new, unopened device (talking to your protocol peer or fa
 
 Optional fixtures: ``break_device(device)`` (a callable that makes the device's connection
 fail, so the suite can check the error state and ``recover()``), ``unsafe_target`` for robots.
+
+Robots also inherit a property-based fuzz of the safety gate (:mod:`weldcell.testing.safety_fuzz`):
+``fuzz_examples`` random and adversarial commands through the public API, the driver methods spied on
+(nothing moves), every accepted command re-checked by an independent dense checker. Set the class
+attribute ``fuzz_examples`` (default 30) to run more, or 0 to skip it (say why in your test file).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from weldcell.hal.interfaces import (
 from weldcell.hal.lifecycle import Device, State
 from weldcell.hal.robot import Robot
 from weldcell.sdk.errors import DeviceError, SafetyError
+from weldcell.testing.conformance_streams import StreamingConformance
 
 
 class DeviceConformance:
@@ -173,6 +179,23 @@ class RobotConformance(DeviceConformance):
                 got = d.state().T_base_tcp
                 assert np.linalg.norm(got[:3, 3] - target[:3, 3]) < 2e-3
 
+    fuzz_examples = 30
+    """Commands the inherited safety fuzz sends (hypothesis, derandomized); more in the adapter's own CI."""
+
+    def test_fuzzed_commands_never_reach_the_driver_unsafe(self, device):
+        """Random and adversarial commands (malformed poses, NaN/inf, far targets, bad durations and blends,
+        rotation-heavy twists, joint sweeps): nothing unsafe reaches the driver, nothing but SafetyError
+        escapes the public methods."""
+        if not self.fuzz_examples:
+            pytest.skip("fuzz_examples = 0 in this adapter's suite")
+        pytest.importorskip("hypothesis")
+        from weldcell.testing.safety_fuzz import fuzz_robot
+
+        with device as d:
+            report = fuzz_robot(d, self.fuzz_examples)
+        assert report.errors == [], f"non-gate exceptions escaped: {report.errors[:3]}"
+        assert report.unsafe == [], f"unsafe commands reached the driver: {report.unsafe[:3]}"
+
     def test_stop_is_always_allowed(self, device):
         with device as d:
             d.stop()
@@ -214,7 +237,7 @@ class GestureSensorConformance(DeviceConformance):
                     assert abs(np.linalg.norm(h.palm_normal) - 1.0) < 1e-3
 
 
-class DisplacementSensorConformance(DeviceConformance):
+class DisplacementSensorConformance(StreamingConformance, DeviceConformance):
     interface = DisplacementSensor
 
     def read_once(self, dev):
@@ -235,14 +258,14 @@ class TactileCameraConformance(DeviceConformance):
         return dev.capture()
 
 
-class ImuConformance(DeviceConformance):
+class ImuConformance(StreamingConformance, DeviceConformance):
     interface = Imu
 
     def read_once(self, dev):
         return dev.read()
 
 
-class GnssConformance(DeviceConformance):
+class GnssConformance(StreamingConformance, DeviceConformance):
     interface = Gnss
 
     def read_once(self, dev):

@@ -497,6 +497,48 @@ class RobotModel:
         J = np.concatenate([np.cross(z, pe - o), z], axis=2).transpose(0, 2, 1)
         return J[0] if Q.ndim == 1 else J
 
+    def fk_jacobian(self, q: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Flange pose (4, 4) and geometric Jacobian (6, dof) of ``q`` (dof,) from one pass of the chain."""
+        theta = self._as_q(q).reshape(self.dof) + self.dh.offset
+        T = np.eye(4)
+        z = np.empty((self.dof, 3))
+        o = np.empty((self.dof, 3))
+        for i in range(self.dof):  # the chain of _chain for one configuration, without batch overhead
+            A = T @ self._pre[i]
+            z[i], o[i] = A[:3, 2], A[:3, 3]
+            c, s = math.cos(theta[i]), math.sin(theta[i])
+            B = A.copy()
+            B[:, 0] = c * A[:, 0] + s * A[:, 1]
+            B[:, 1] = c * A[:, 1] - s * A[:, 0]
+            T = B @ self._post[i]
+        F = T @ self.dh.flange
+        J = np.empty((6, self.dof))
+        J[:3] = np.cross(z, F[:3, 3] - o).T
+        J[3:] = z.T
+        return F, J
+
+    def joint_lever_bounds(self) -> np.ndarray:
+        """(dof,) upper bound, over every configuration, of the distance (m) from joint axis ``i`` to the
+        flange origin.
+
+        The chain from a point on axis ``i`` to the flange is a sequence of rigidly linked points (axis
+        point, link frame origin, next axis point, ...), so the triangle inequality over their constant
+        spacings bounds the distance whatever the joint angles. A joint motion ``dq`` therefore moves the
+        flange origin by at most ``sum_i |dq_i| * bound_i`` (and a TCP at offset ``r`` from the flange by
+        at most ``sum_i |dq_i| * (bound_i + |r|)``): the safety gate uses it to check joint moves
+        conservatively between samples.
+        """
+        dist = [float(np.linalg.norm(self._post[i][:3, 3])) for i in range(self.dof)]  # axis i -> frame i
+        hop = [float(np.linalg.norm(self._pre[i][:3, 3])) for i in range(self.dof)]  # frame i-1 -> axis i
+        tail = float(np.linalg.norm(self.dh.flange[:3, 3]))  # last frame -> flange
+        out = np.empty(self.dof)
+        acc = tail
+        for i in range(self.dof - 1, -1, -1):
+            acc += dist[i]
+            out[i] = acc
+            acc += hop[i]
+        return out
+
     # ------------------------------------------------------------------ limits and reach
     def within_limits(self, q: Any, margin: float = 0.0) -> bool:
         """True when every joint of ``q`` lies inside its limits (shrunk by ``margin`` rad)."""

@@ -18,6 +18,7 @@ import rtde_control
 import rtde_receive
 from weldcell.hal.robot import Robot
 from weldcell.hal.safety import SafetyGate
+from weldcell.hal.safety import path_blends as gate_path_blends
 from weldcell.plugins.ur import rtde_protocol as P
 from weldcell.plugins.ur.settings import URSettings
 from weldcell.sdk.errors import DeviceError
@@ -29,16 +30,9 @@ _NET_FIX = "check the robot is on, in remote control, and reachable at {host} (n
 
 
 def path_blends(poses: np.ndarray, blend: float) -> np.ndarray:
-    """Per-waypoint blend radii for moveL paths: at most 45 % of the shorter neighbouring segment
-    (UR refuses overlapping blends) and 0 at the last waypoint (UR requires the path to end there)."""
-    p = poses[:, :3, 3]
-    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    out = np.full(len(p), float(blend))
-    if len(p) > 1:
-        nb = np.minimum(np.append(seg, np.inf), np.insert(seg, 0, np.inf))
-        out = np.minimum(out, 0.45 * nb)
-    out[-1] = 0.0
-    return np.maximum(out, 0.0)
+    """Per-waypoint blend radii for moveL paths (UR refuses overlapping blends and needs the path to end
+    with a zero blend): the gate's own rule, :func:`weldcell.hal.safety.path_blends`, on the positions."""
+    return gate_path_blends(np.asarray(poses, dtype=float)[:, :3, 3], blend)
 
 
 class URRobot(Robot):

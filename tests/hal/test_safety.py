@@ -10,7 +10,7 @@ from weldcell.hal.sim.devices import SimRobot
 from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.world import SimWorld
 from weldcell.sdk.cell import SafetyLimits
-from weldcell.sdk.errors import DataError, SafetyError
+from weldcell.sdk.errors import SafetyError
 from weldcell.sdk.geometry import T_from_rotvec, T_from_rpy, invert, pose_error
 
 UR5 = get_model("ur5")
@@ -149,7 +149,7 @@ def test_path_leaving_the_box_midway_is_refused_before_anything_is_sent(sent):
     c = shifted(start.T_base_tcp, dx=0.10)
     with pytest.raises(SafetyError) as e:
         r.follow_path(np.stack([a, b, c]), speed=0.05)
-    assert e.value.message.startswith("path segment 1 at ")
+    assert e.value.message.startswith("path pose 1 [")
     assert "outside the cell's workspace box (axis z" in e.value.message
     assert calls == []
     np.testing.assert_allclose(r.state().q, start.q)
@@ -202,15 +202,18 @@ def test_velocity_command_caps_and_box(sent):
     near = SafetyLimits(workspace_min=(-1, -1, 0), workspace_max=(p[0] + 0.005, 1, 1))
     r2 = make_robot(near)
     calls2 = sent(r2)
-    with pytest.raises(SafetyError, match=r"velocity command \(TCP after 0.05 s\) .* outside.*axis x"):
-        r2.speed_linear([0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
-    r2.speed_linear([-0.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # away from the wall is fine
-    assert calls2 == ["_speed_linear"]
+    r2.speed_linear([0.2, 0.0, 0.0, 0.0, 0.0, 0.0], duration=0.008)  # 1.6 mm: still 3.4 mm from the wall
+    with pytest.raises(
+        SafetyError, match=r"velocity command \(TCP after [0-9.]+ s of 0.05 s\) .* outside.*axis x"
+    ):
+        r2.speed_linear([0.2, 0.0, 0.0, 0.0, 0.0, 0.0], duration=0.05)  # 10 mm: through the wall
+    r2.speed_linear([-0.2, 0.0, 0.0, 0.0, 0.0, 0.0], duration=0.05)  # away from the wall is fine
+    assert calls2 == ["_speed_linear", "_speed_linear"]
 
 
-def test_malformed_path_is_a_data_error():
+def test_malformed_path_is_refused():
     r = make_robot()
-    with pytest.raises(DataError, match=r"\(K, 4, 4\)"):
+    with pytest.raises(SafetyError, match=r"\(K, 4, 4\)"):
         r.follow_path(np.eye(4))
 
 
@@ -295,3 +298,231 @@ def test_speed_linear_translation_moves_the_tcp_by_v_times_t():
     for _ in range(20):
         r.speed_linear(np.concatenate([v, np.zeros(3)]), duration=0.01)
     np.testing.assert_allclose(r.state().T_base_tcp[:3, 3] - p0, v * 0.2, atol=2e-4)
+
+
+# -- issue 15: malformed inputs, work bounds, executed motions --------------------------------------
+def _no_tracking(monkeypatch, gate):
+    def fail(*a, **k):
+        raise AssertionError("the gate interpolated or tracked a motion it should have refused at once")
+
+    monkeypatch.setattr(gate, "_track", fail)
+    monkeypatch.setattr(gate, "_sweep", fail)
+
+
+@pytest.mark.parametrize(
+    "mangle, message",
+    [
+        (lambda T: T[:3], r"has shape \(3, 4\), not \(4, 4\)"),
+        (lambda T: np.vstack([T[:3], [np.nan, 0, 0, 1]]), "NaN or infinite"),
+        (lambda T: np.vstack([T[:3], [0, 0, 0, 2]]), r"last row \[0.0, 0.0, 0.0, 2.0\]"),
+        (lambda T: np.where(np.arange(16).reshape(4, 4) == 3, np.inf, T), "NaN or infinite"),
+        (lambda T: np.block([[T[:3, :3] * 1.5, T[:3, 3:]], [np.array([[0, 0, 0, 1]])]]), "not orthonormal"),
+        (
+            lambda T: T @ np.array([[1, 0.2, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]),
+            "not orthonormal",
+        ),
+        (lambda T: T @ np.diag([-1.0, 1, 1, 1]), r"mirrored rotation \(det R = -1\)"),
+        (lambda T: [[1, 2], [3]], "not a 4x4 array of numbers"),
+        (lambda T: "home", "not a 4x4 array of numbers"),
+    ],
+    ids=["3x4", "nan-last-row", "bad-last-row", "inf", "scaled", "sheared", "mirrored", "ragged", "string"],
+)
+def test_malformed_poses_are_refused_before_any_math(mangle, message, sent, monkeypatch):
+    r = make_robot()
+    calls = sent(r)
+    _no_tracking(monkeypatch, r.gate)
+    T = shifted(r.state().T_base_tcp, dz=0.01)
+    with pytest.raises(SafetyError, match=message):
+        r.move_linear(mangle(T))
+    with pytest.raises(SafetyError, match=message):
+        r.follow_path([T, mangle(T)])
+    assert calls == []
+
+
+def test_a_scaled_rotation_is_not_silently_corrected():
+    """On a real UR a scaled rotation is a different pose; the gate refuses it and says how to build one."""
+    r = make_robot()
+    T = shifted(r.state().T_base_tcp, dz=0.05)
+    T[:3, :3] *= 1.001
+    with pytest.raises(SafetyError) as e:
+        r.move_linear(T)
+    assert "scaled or sheared" in e.value.message and "orthonormalize" in e.value.fix
+    assert e.value.exit_code == 6
+
+
+@pytest.mark.parametrize("distance", [1e5, 1e6, 1e300])
+def test_a_target_far_away_is_refused_without_interpolating(distance, sent, monkeypatch):
+    r = make_robot()
+    calls = sent(r)
+    _no_tracking(monkeypatch, r.gate)
+    with pytest.raises(SafetyError, match="outside the cell's workspace box|beyond its reach"):
+        r.move_linear(shifted(r.state().T_base_tcp, dx=distance))
+    with pytest.raises(SafetyError, match="path pose 0 .* outside"):
+        r.follow_path([shifted(r.state().T_base_tcp, dx=distance)])
+    assert calls == []
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.5, np.nan, np.inf, -np.inf, "fast", [0.1], True])
+def test_speeds_accelerations_and_durations_must_be_finite_and_positive(bad, sent):
+    r = make_robot()
+    calls = sent(r)
+    T = shifted(r.state().T_base_tcp, dz=0.01)
+    for call in (
+        lambda: r.move_linear(T, speed=bad),
+        lambda: r.move_linear(T, accel=bad),
+        lambda: r.move_joint(UR5.home, speed=bad),
+        lambda: r.follow_path([T], accel=bad),
+        lambda: r.speed_linear([0.01, 0, 0, 0, 0, 0], duration=bad),
+        lambda: r.speed_linear([0.01, 0, 0, 0, 0, 0], accel=bad),
+    ):
+        with pytest.raises(SafetyError):
+            call()
+    assert calls == []
+
+
+def test_negative_servo_duration_never_reaches_the_driver(sent):
+    """The gate used to check max(duration, 0.05) while the driver integrated the raw (negative) value."""
+    r = make_robot()
+    calls = sent(r)
+    for d in (-3.0, -0.008, 0.0):
+        with pytest.raises(SafetyError, match="velocity command duration must be a finite positive"):
+            r.speed_linear([0.0, 0.0, -0.2, 0.0, 0.0, 0.0], duration=d)
+    assert calls == []
+
+
+@pytest.mark.parametrize("blend", [np.nan, -0.001, np.inf, "5 mm"])
+def test_invalid_blends_are_refused(blend, sent):
+    r = make_robot()
+    calls = sent(r)
+    T0 = r.state().T_base_tcp
+    with pytest.raises(SafetyError, match="blend radius"):
+        r.follow_path([shifted(T0, dx=0.02), shifted(T0, dx=0.04)], blend=blend)
+    assert calls == []
+
+
+def test_path_blends_are_clipped_to_45_percent_of_the_shorter_neighbour():
+    from weldcell.hal.safety import path_blends
+
+    p = np.array([[0, 0, 0], [0.02, 0, 0], [0.024, 0, 0], [0.05, 0, 0]], dtype=float)
+    np.testing.assert_allclose(path_blends(p, 0.005), [0.005, 0.45 * 0.004, 0.45 * 0.004, 0.0])
+
+
+def test_rotation_only_servo_is_checked_on_the_arc_it_sweeps(sent):
+    """0.74 rad/s for 3 s with a 20 cm torch: the flange twist is fixed at the start, so the torch tip
+    swings round (the TCP speed grows to ~0.3 m/s and the arc leaves the box); refused."""
+    r = make_robot(tcp_xyz=(0.0, 0.0, 0.2))
+    calls = sent(r)
+    with pytest.raises(SafetyError) as e:
+        r.speed_linear([0.0, 0.0, 0.0, 0.74 / np.sqrt(2), 0.74 / np.sqrt(2), 0.0], duration=3.0)
+    assert "velocity command" in e.value.message
+    assert calls == []
+
+
+def test_the_sim_driver_executes_the_servo_motion_the_gate_checked():
+    from weldcell.hal.safety import servo_flange_pose
+
+    r = make_robot(tcp_xyz=(0.0, 0.0, 0.15))
+    st0 = r.state()
+    tw = np.array([0.02, -0.01, 0.015, 0.2, -0.1, 0.3])
+    r.speed_linear(tw, duration=0.5)
+    ftw = tw.copy()
+    ftw[:3] -= np.cross(tw[3:], st0.T_base_flange[:3, :3] @ r.T_flange_tcp[:3, 3])
+    want = servo_flange_pose(st0.T_base_flange, ftw, 0.5)
+    dp, dr = pose_error(r.state().T_base_flange, want)
+    assert dp < 1e-9 and dr < 1e-9
+
+
+def test_servo_refuses_joint_speeds_over_the_hardware_limits_near_the_wrist_singularity(sent):
+    q = np.array(UR5.home)
+    q[4] = 1e-3  # wrist singular: axes 4 and 6 (almost) aligned
+    r = make_robot(q_start=q)
+    calls = sent(r)
+    J = UR5.jacobian(q)
+    null = np.linalg.svd(J)[2][-1]  # the joint direction the flange barely moves in
+    bad = J @ null  # a tiny twist that needs that direction fast: wrist joints spin
+    tw = np.concatenate([np.zeros(3), bad[3:] / np.linalg.norm(bad[3:]) * 0.5])
+    with pytest.raises(SafetyError, match=r"joint \d would turn at \d+ deg/s, over its limit"):
+        r.speed_linear(tw, duration=0.2)
+    assert calls == []
+
+
+def test_linear_move_through_the_wrist_singularity_is_refused_for_its_joint_speed(sent):
+    """0.25 mm of TCP path over which joint 4 must turn ~95 deg: 15 samples saw nothing; refused now."""
+    q = np.array(UR5.home)
+    q[4] = 2e-4
+    r = make_robot(q_start=q)
+    calls = sent(r)
+    T0 = r.state().T_base_tcp
+    Jinv = np.linalg.inv(UR5.jacobian(q))[:, :3]  # joint motion per TCP translation, orientation fixed
+    dp = np.linalg.svd(Jinv)[2][0] * 2.5e-4  # the worst direction, 0.25 mm
+    T1 = shifted(T0, *dp)
+    q1 = UR5.ik(T1, q)
+    assert np.degrees(np.max(np.abs(q1 - q))) > 30  # the wrist has to spin over a quarter of a millimetre
+    with pytest.raises(SafetyError, match=r"joint \d would turn at \d+ deg/s|joints would jump"):
+        r.move_linear(T1, speed=0.05)
+    assert calls == []
+
+
+def test_joint_sweep_leaving_the_box_between_samples_is_refused(sent):
+    """The old gate's 25 samples all lay inside; the arc's apex is 0.1 mm outside: conservative now."""
+    q0, q1 = np.array(UR5.home), np.array(UR5.home)
+    q0[0] -= 1.0 + 1.0 / 48  # the apex (joint 1 at home) falls midway between two of the 25 samples
+    q1[0] += 1.0 - 1.0 / 48
+    s = np.linspace(0.0, 1.0, 2001)
+    x = UR5.fk(q0[None] + s[:, None] * (q1 - q0)[None])[:, 0, 3]
+    x25 = UR5.fk(q0[None] + np.linspace(0, 1, 25)[:, None] * (q1 - q0)[None])[:, 0, 3]
+    x_max = x.max() - 1e-4
+    assert x25.max() < x_max  # the old sampled check passed this sweep
+    r = make_robot(SafetyLimits(workspace_min=(-1, -1, 0), workspace_max=(x_max, 1, 1)), q_start=q0)
+    calls = sent(r)
+    with pytest.raises(SafetyError, match=r"joint move at \d+% of the motion .* outside .*axis x"):
+        r.move_joint(q1, speed=0.5)
+    assert calls == []
+    r2 = make_robot(SafetyLimits(workspace_min=(-1, -1, 0), workspace_max=(x.max() + 1e-3, 1, 1)), q_start=q0)
+    r2.move_joint(q1, speed=0.5)  # 1 mm of margin: provably inside, accepted
+
+
+def test_unexpected_errors_inside_the_gate_become_refusals(sent, monkeypatch):
+    r = make_robot()
+    calls = sent(r)
+
+    def boom(*a, **k):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    monkeypatch.setattr(r.gate, "_newton", boom)
+    with pytest.raises(SafetyError, match="could not be completed .*LinAlgError"):
+        r.move_linear(shifted(r.state().T_base_tcp, dz=0.02), speed=0.05)
+    assert calls == []
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("workspace_min", (float("nan"), -1.0, 0.0)),
+        ("workspace_max", (1.0, 1.0, float("inf"))),
+        ("max_linear_speed", float("inf")),
+        ("max_linear_speed", "1e400 m/s"),
+        ("max_angular_speed", float("nan")),
+        ("path_check_step", float("inf")),
+        ("path_check_step", "0.001 mm"),
+    ],
+)
+def test_non_finite_or_unbounded_limits_are_refused_by_the_profile(field, value):
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError) as e:
+        SafetyLimits(**{field: value})
+    assert field in str(e.value)
+
+
+def test_lever_bounds_cover_every_configuration():
+    for name in ("ur5", "ur10e", "abb-irb2600", "franka-panda"):
+        m = get_model(name)
+        bound = m.joint_lever_bounds()
+        rng = np.random.default_rng(3)
+        q = m.joint_limits[:, 0] + (m.joint_limits[:, 1] - m.joint_limits[:, 0]) * rng.random((100, m.dof))
+        for qi in q:
+            F, J = m.fk_jacobian(qi)
+            np.testing.assert_allclose(J, m.jacobian(qi), atol=1e-12)
+            lever = np.linalg.norm(J[:3], axis=0)  # |z_i x (p - o_i)|: distance from axis i
+            assert np.all(lever <= bound + 1e-12)

@@ -141,3 +141,9 @@ def test_json_schema_and_unit_of_document_the_unit():
     assert unit_of(Torch.model_fields["travel"].metadata) == "m/s"
     assert unit_of(Torch.model_fields["rate"].metadata) == "Hz"
     assert unit_of([]) is None
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf"), "1e400 m", "nan mm", "inf m"])
+def test_non_finite_quantities_are_refused(value):
+    with pytest.raises(ValueError, match="not a finite length|cannot read"):
+        parse_quantity(value, "length")
