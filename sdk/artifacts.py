@@ -1,8 +1,14 @@
-"""Atomic file writes and JSON helpers for run folders: a reader never sees half a file."""
+"""Atomic, durable file writes and JSON helpers for run folders.
+
+Every write goes to a temporary file beside the target, is flushed to the disk (``fsync``), then
+replaces the target in one rename, and the folder entry is flushed too: after a crash or a power cut a
+reader finds either the old file or the new one, never half of one (docs/runs.md).
+"""
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import tempfile
@@ -13,9 +19,36 @@ from typing import Any
 import numpy as np
 
 
+def fsync_file(path: str | Path) -> None:
+    """Flush a file's data to the disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_dir(path: str | Path) -> None:
+    """Flush a folder's entries (a rename or a new file in it) to the disk; a no-op where unsupported."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:  # e.g. Windows cannot open a folder
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path`` in one rename."""
+    """Yield a temporary path beside ``path``; on success it replaces ``path`` in one rename.
+
+    The temporary file is fsync'ed before the rename and the folder after it, so the new content is on
+    the disk once this returns. On an exception ``path`` is left as it was and the temporary removed.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -23,10 +56,38 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        fsync_file(tmp_path)
         os.replace(tmp_path, path)
+        fsync_dir(path.parent)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write bytes atomically and durably."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+def save_figure(fig: Any, path: str | Path, **kwargs: Any) -> Path:
+    """``fig.savefig`` atomically and durably (the format follows ``path``'s suffix)."""
+    path = Path(path)
+    kwargs.setdefault("format", path.suffix.lstrip(".") or "png")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, **kwargs)
+    return path
+
+
+def sha256_file(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def _json_default(obj: Any) -> Any:
@@ -47,18 +108,18 @@ def dumps(data: Any) -> str:
 
 
 def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as JSON atomically."""
+    """Write ``data`` as JSON atomically and durably."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        tmp.write_text(dumps(data) + "\n")
+        tmp.write_text(dumps(data) + "\n", encoding="utf-8")
     return path
 
 
 def write_text(path: str | Path, text: str) -> Path:
-    """Write text atomically."""
+    """Write text (UTF-8) atomically and durably."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
     return path
 
 
@@ -70,6 +131,10 @@ def read_json(path: str | Path) -> Any:
     if not path.is_file():
         raise DataError(f"file not found: {path}", "check the path")
     try:
-        return json.loads(path.read_text())
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise DataError(
+            f"{path}: not a UTF-8 text file (byte {e.start} cannot be read)", "fix the file or write it again"
+        ) from None
     except json.JSONDecodeError as e:
         raise DataError(f"{path}: not valid JSON ({e})", "fix the file or write it again") from None

@@ -19,8 +19,19 @@ from rich.markup import escape
 from weldcell.sdk.errors import WeldcellError
 from weldcell.sdk.plugins import get_plugin_manager
 
-console = Console(stderr=True, highlight=False)
-out = Console(highlight=False)
+
+class _RedactingConsole(Console):
+    """A console that never prints a secret: registered ``${env:NAME}`` values show as their reference,
+    credentials in URLs are masked (weldcell.sdk.secrets)."""
+
+    def print(self, *objects, **kwargs) -> None:  # type: ignore[override]
+        from weldcell.sdk.secrets import redact
+
+        super().print(*(redact(o) if isinstance(o, str) else o for o in objects), **kwargs)
+
+
+console = _RedactingConsole(stderr=True, highlight=False)
+out = _RedactingConsole(highlight=False)
 
 
 class RichReporter:
@@ -76,20 +87,44 @@ class WeldcellGroup(click.Group):
         return cmd if cmd is not None else self._plugin_commands().get(name)
 
     def _plugin_commands(self) -> dict[str, click.Command]:
+        """Plugin commands by name; a name with a space (``"map relocalize"``) is a sub-command of a
+        group (``weldcell map``) that the plugins share: the group is made here from its members."""
         try:
             reg = get_plugin_manager().registry
         except WeldcellError:
             return {}
         builtin = set(self.commands)
-        return {n: r.descriptor.command for n, r in reg.entries["command"].items() if n not in builtin}
+        out: dict[str, click.Command] = {}
+        groups: dict[str, dict[str, tuple[str, click.Command]]] = {}
+        for n, r in reg.entries["command"].items():
+            group, _, sub = n.partition(" ")
+            if group in builtin:
+                continue
+            if sub:
+                groups.setdefault(group, {})[sub] = (r.descriptor.summary, r.descriptor.command)
+            else:
+                out[n] = r.descriptor.command
+        for group, members in groups.items():
+            g = out.get(group)
+            if g is None:
+                helptext = f"{group} commands: " + ", ".join(sorted(members)) + "."
+                g = out[group] = click.Group(group, help=helptext)
+            if not isinstance(g, click.Group):  # a plain command took the group's name: it stays alone
+                continue
+            for sub, (_summary, cmd) in sorted(members.items()):
+                if sub not in g.commands:
+                    g.add_command(cmd, sub)
+        return out
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except WeldcellError as e:
             debug = ctx.meta.get("weldcell.debug", False)
-            if debug:
-                traceback.print_exc()
+            if debug:  # the traceback too is redacted: no secret value on the terminal
+                from weldcell.sdk.secrets import redact
+
+                sys.stderr.write(redact(traceback.format_exc()))
             console.print(f"[bold red]error:[/bold red] {escape(e.message)}")
             for line in getattr(e, "problems", []) or []:
                 console.print(f"  - {escape(line)}")
@@ -133,10 +168,28 @@ def main(ctx: click.Context, debug: bool, strict_plugins: bool) -> None:
     "--resume", "resume", type=click.Path(path_type=Path), help="Continue an interrupted run folder."
 )
 @click.option("--runs-dir", type=click.Path(path_type=Path), help="Where to create the run folder.")
+@click.option(
+    "--redo",
+    "redo",
+    multiple=True,
+    metavar="STEP",
+    help="With --resume: run STEP again although it moved the robot or welded before (repeatable).",
+)
 @click.option("--dry-run", is_flag=True, help="Log motion commands instead of sending them.")
 @click.option("-q", "--quiet", is_flag=True, help="Print only the summary.")
-def run(profile: Path, resume: Path | None, runs_dir: Path | None, dry_run: bool, quiet: bool) -> None:
-    """Run the job of PROFILE (simulated or on hardware) and write a run folder."""
+def run(
+    profile: Path,
+    resume: Path | None,
+    runs_dir: Path | None,
+    redo: tuple[str, ...],
+    dry_run: bool,
+    quiet: bool,
+) -> None:
+    """Run the job of PROFILE (simulated or on hardware) and write a run folder.
+
+    An interrupted run continues with --resume RUN_DIR: captures are verified and kept, computation is
+    redone, and a step that moved the robot or welded is never repeated unless named with --redo.
+    """
     from weldcell.sdk.jobs import run_job
 
     pm = get_plugin_manager()
@@ -150,7 +203,7 @@ def run(profile: Path, resume: Path | None, runs_dir: Path | None, dry_run: bool
         console.print(f"[bold]weldcell run[/bold] {profile}")
     t0 = time.perf_counter()
     run_dir, result = run_job(
-        profile, pm, run_dir=resume, runs_dir=runs_dir, reporter=reporter, overrides=overrides
+        profile, pm, run_dir=resume, runs_dir=runs_dir, reporter=reporter, overrides=overrides, redo=redo
     )
     summary = run_dir / "summary.txt"
     if summary.is_file():
@@ -189,9 +242,12 @@ def profiles_validate(files: tuple[Path, ...]) -> None:
             loaded, resolved = prepare(f, pm)
         except ProfileError as e:
             failed += 1
-            console.print(f"[red]✗[/red] {escape(str(f))}: {escape(e.message)}")
+            message = e.message.removeprefix(f"{Path(f).resolve()}: ").removeprefix(f"{f}: ")
+            console.print(f"[red]✗[/red] {escape(str(f))}: {escape(message)}")
             for line in e.problems:
                 console.print(f"    - {escape(line)}")
+            if e.fix:
+                console.print(f"  [bold]fix:[/bold] {escape(e.fix)}")
             continue
         devices = ", ".join(f"{r}={s.name}" for r, (s, _) in resolved["devices"].items())
         out.print(f"[green]✓[/green] {f}  job={loaded.profile.job.name}  devices: {devices or '-'}")
@@ -203,13 +259,35 @@ def profiles_validate(files: tuple[Path, ...]) -> None:
 @profiles.command("list")
 @click.argument("folder", default="profiles", type=click.Path(path_type=Path))
 def profiles_list(folder: Path) -> None:
-    """List the profiles in FOLDER with their job and description."""
-    import tomllib
+    """List the profiles in FOLDER with their job and description.
 
+    A file that cannot be read is listed with its error and the others still are (exit 3 at the end).
+    """
+    from weldcell.sdk.errors import ProfileError, UsageError
+    from weldcell.sdk.profile import read_profile_file
+
+    if not folder.is_dir():
+        raise UsageError(
+            f"profile folder not found: {folder}", "give the folder that holds the .toml profiles"
+        )
+    broken = 0
     for f in sorted(folder.glob("*.toml")):
-        data = tomllib.loads(f.read_text())
-        job = data.get("job", {}).get("name", "(inherited)")
-        out.print(f"{f}  [bold]{job}[/bold]  {data.get('description', '')}")
+        try:
+            data = read_profile_file(f)
+        except ProfileError as e:
+            broken += 1
+            console.print(f"[red]✗[/red] {escape(str(f))}  [red]error:[/red] {escape(e.message)}")
+            continue
+        job = data.get("job")
+        name = job.get("name", "(inherited)") if isinstance(job, dict) else "(inherited)"
+        out.print(
+            f"{escape(str(f))}  [bold]{escape(str(name))}[/bold]  {escape(str(data.get('description', '')))}"
+        )
+    if broken:
+        console.print(
+            f"{broken} profile(s) could not be read  [bold]fix:[/bold] `weldcell profiles validate FILE`"
+        )
+        sys.exit(3)
 
 
 @main.command()

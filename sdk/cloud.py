@@ -129,26 +129,53 @@ def check_units(cloud: PointCloud, declared: str, what: str = "point cloud") -> 
         )
 
 
+# A coordinate this large (in any unit weldcell reads) is garbage, not a workpiece: the data is damaged
+# or the header's types do not match it.
+_MAX_COORDINATE = 1e6
+
+
+def load_cloud_file(path: str | Path, frame: str = "base") -> PointCloud:
+    """Read a PLY or PCD file as stored (no unit conversion, NaN points kept).
+
+    The file is checked first (:func:`weldcell.sdk.cloudfile.check_cloud_file`: header, declared
+    point count against the body, x/y/z present), then read by Open3D with its console output
+    silenced; the points read must be the points declared. DataError with the fix otherwise.
+    """
+    import open3d as o3d
+    from weldcell.sdk.cloudfile import check_cloud_file, quiet_native_output
+
+    info = check_cloud_file(path)
+    with quiet_native_output() as said:
+        pc = o3d.io.read_point_cloud(str(info.path), remove_nan_points=False, remove_infinite_points=False)
+    cloud = PointCloud.from_open3d(pc, frame=frame)
+    if len(cloud) != info.points:
+        why = f" (the reader said: {said[0]})" if said else ""
+        raise DataError(
+            f"{info.path}: declares {info.points} points but {len(cloud)} could be read{why}",
+            "the file is damaged; export or copy it again",
+        )
+    finite = cloud.points[np.all(np.isfinite(cloud.points), axis=1)]
+    if len(finite) and float(np.max(np.abs(finite))) > _MAX_COORDINATE:
+        raise DataError(
+            f"{info.path}: coordinates reach {float(np.max(np.abs(finite))):.3g}: no scan in m or mm",
+            "the data is damaged or its header declares the wrong types; export it again",
+        )
+    cloud.meta["source"] = str(info.path)
+    return cloud
+
+
 def read_cloud(
     path: str | Path, units: str = "m", frame: str = "base", check_scale: bool = True
 ) -> PointCloud:
     """Read a PLY or PCD file whose coordinates are in ``units``; return it in metres.
 
-    Raises :class:`DataError` for a missing, unreadable or empty file, NaNs, or (with ``check_scale``)
-    a cloud whose extent does not fit ``units``.
+    Raises :class:`DataError` for a missing, unreadable, damaged (see :func:`load_cloud_file`) or
+    empty file, NaNs, or (with ``check_scale``) a cloud whose extent does not fit ``units``.
     """
-    import open3d as o3d
-
     path = Path(path)
     if units not in UNIT_SCALE:
         raise DataError(f"unknown units '{units}'", f"use one of {', '.join(UNIT_SCALE)}")
-    if not path.is_file():
-        raise DataError(f"point cloud file not found: {path}", "check the path")
-    if path.suffix.lower() not in (".ply", ".pcd"):
-        raise DataError(f"{path}: unsupported point cloud format '{path.suffix}'", "use a .ply or .pcd file")
-    pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
-    cloud = PointCloud.from_open3d(pc, frame=frame)
-    cloud.meta["source"] = str(path)
+    cloud = load_cloud_file(path, frame=frame)
     check_cloud(cloud, what=str(path))
     if check_scale:
         check_units(cloud, units, what=str(path))

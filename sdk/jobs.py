@@ -1,9 +1,19 @@
 """The job runner: validates a profile, opens its devices, runs the job's steps, writes the run folder.
 
-A run folder (``runs/<profile>-<time>/``) holds ``state.json`` (what is done, what was captured),
-every artifact (written atomically), ``result.json`` (figures + provenance) and ``report.md``.
-An interrupted run keeps everything captured so far; ``weldcell run PROFILE --resume RUN_DIR``
-continues it, and jobs skip captures that ``state.json`` lists.
+A run folder (``runs/<profile>-<time>/``) holds ``state.json`` (every step with its kind and status,
+every capture with its size and SHA-256), every artifact (written atomically and durably),
+``result.json`` (figures + provenance) and ``report.md``. An interrupted run keeps everything captured
+so far; ``weldcell run PROFILE --resume RUN_DIR`` continues it where it stopped:
+
+- ``compute`` steps (pure computation) are simply computed again from the captures;
+- ``motion`` steps (a robot moved, a torch welded: side effects on the cell) that are done are never
+  repeated, and one that was interrupted after it started stops the resume with an error, unless the
+  operator asks for it with ``--redo STEP``;
+- ``checkpointed`` steps (a scan) continue from their own records: captures already taken are verified
+  against their size and checksum and kept, the step goes on from the last good one.
+
+Nothing a run writes (files, messages, provenance) contains a ``${env:NAME}`` secret's value
+(:mod:`weldcell.sdk.secrets`). See docs/runs.md.
 """
 
 from __future__ import annotations
@@ -21,13 +31,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from weldcell.sdk import artifacts
-from weldcell.sdk.errors import DeviceError, JobError, WeldcellError
+from weldcell.sdk import artifacts, secrets
+from weldcell.sdk.errors import DeviceError, JobError, SafetyError, UsageError, WeldcellError
 from weldcell.sdk.geometry import T_from_rpy
 from weldcell.sdk.plugins import PluginManager
 from weldcell.sdk.profile import LoadedProfile, Mount, load_profile, validate_profile
+from weldcell.sdk.settings import with_defaults
 
 RESULT_SCHEMA = "weldcell/run-result@1"
+STATE_SCHEMA = "weldcell/run-state@2"
+STEP_KINDS = ("setup", "compute", "checkpointed", "motion")
+STARTED = ("running", "failed", "interrupted")  # a step that began and did not finish
 
 
 class Reporter:
@@ -74,36 +88,152 @@ class DeviceContext:
         return self.devices[role]
 
 
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def step_key(name: str) -> str:
+    """The short name ``--redo`` accepts for a step: its words before any '(' (lower case)."""
+    return name.split(" (")[0].strip().lower()
+
+
 @dataclass
 class RunState:
-    """The resumable part of a run, saved to ``state.json`` after every change."""
+    """The resumable part of a run, saved to ``state.json`` (atomically, durably) after every change.
+
+    ``steps``: name -> ``{"kind", "status", "attempts", "seconds", "error", ...}``; ``captures``: what
+    the job captured, each with ``file``, ``bytes`` and ``sha256`` of that file; ``notes``: job data.
+    """
 
     path: Path
-    data: dict[str, Any] = field(default_factory=lambda: {"steps": {}, "captures": [], "notes": {}})
+    data: dict[str, Any] = field(
+        default_factory=lambda: {"schema": STATE_SCHEMA, "steps": {}, "captures": [], "notes": {}}
+    )
 
     @classmethod
     def load_or_new(cls, path: Path) -> RunState:
         if path.is_file():
-            return cls(path, artifacts.read_json(path))
+            data = artifacts.read_json(path)
+            if not isinstance(data, dict) or not isinstance(data.get("steps"), dict):
+                raise JobError(
+                    f"{path} is not a weldcell run state",
+                    "give the folder of an earlier run, or start a new run",
+                )
+            data.setdefault("captures", [])
+            data.setdefault("notes", {})
+            return cls(path, data)
         state = cls(path)
         state.save()
         return state
 
     def save(self) -> None:
-        artifacts.write_json(self.path, self.data)
+        artifacts.write_json(self.path, secrets.redact_obj(self.data))
 
+    @property
+    def run_dir(self) -> Path:
+        return self.path.parent
+
+    # -- steps -----------------------------------------------------------------------------------
+    @property
+    def steps(self) -> dict[str, dict[str, Any]]:
+        return self.data["steps"]
+
+    def status(self, name: str) -> str | None:
+        """``running`` (or killed while running), ``failed``, ``interrupted``, ``done``, or None."""
+        return self.steps.get(name, {}).get("status")
+
+    def step_done(self, name: str) -> bool:
+        return self.status(name) == "done"
+
+    def set_step(self, name: str, **fields: Any) -> None:
+        """Update a step's record and save at once."""
+        self.steps.setdefault(name, {}).update(fields)
+        self.save()
+
+    def interrupted_motions(self) -> list[str]:
+        """Motion steps that started and did not finish: the robot may have moved, or welded part way."""
+        return [n for n, r in self.steps.items() if r.get("kind") == "motion" and r.get("status") in STARTED]
+
+    def match_step(self, key: str) -> str:
+        """The recorded step a ``--redo`` argument names: its full name or :func:`step_key`."""
+        names = list(self.steps)
+        k = " ".join(key.split()).lower()
+        exact = (
+            [n for n in names if n == key]
+            or [n for n in names if step_key(n) == k]
+            or [n for n in names if step_key(n).startswith(k + " ")]  # 'execute' for 'execute weld path'
+        )
+        if len(exact) != 1:
+            known = ", ".join(f"'{step_key(n)}'" for n in names if not n.startswith("open ")) or "none"
+            raise UsageError(
+                f"--redo {key!r}: {'no' if not exact else 'more than one'} step of this run has that name",
+                f"name one of the steps recorded in {self.path}: {known}",
+            )
+        return exact[0]
+
+    # -- captures --------------------------------------------------------------------------------
     @property
     def captures(self) -> list[dict[str, Any]]:
         """Captures recorded so far (each a dict a job defines, e.g. file name + pose)."""
         return self.data["captures"]
 
     def add_capture(self, record: dict[str, Any]) -> None:
-        """Record a capture and save at once, so an interruption never loses it."""
+        """Record a capture and save at once, so an interruption never loses it.
+
+        When the record names a ``file`` (relative to the run folder) that exists, its size (``bytes``)
+        and ``sha256`` are recorded with it, for :meth:`check_capture` on resume.
+        """
+        record = dict(record)
+        f = self.run_dir / record["file"] if isinstance(record.get("file"), str) else None
+        if f is not None and f.is_file():
+            record["bytes"] = f.stat().st_size
+            record["sha256"] = artifacts.sha256_file(f)
         self.data["captures"].append(record)
         self.save()
 
-    def step_done(self, name: str) -> bool:
-        return self.data["steps"].get(name, {}).get("status") == "done"
+    def check_capture(self, index: int) -> str | None:
+        """What is wrong with capture ``index``'s file (missing, truncated, changed), or None if intact."""
+        rec = self.captures[index]
+        name = rec.get("file")
+        if not isinstance(name, str):
+            return None
+        f = self.run_dir / name
+        if not f.is_file():
+            return f"capture {index} ({name}) is missing"
+        size = f.stat().st_size
+        if "bytes" in rec and size != rec["bytes"]:
+            what = "truncated" if size < rec["bytes"] else "longer than recorded"
+            return f"capture {index} ({name}) is damaged: {what} ({size} of {rec['bytes']} bytes)"
+        if "sha256" in rec and artifacts.sha256_file(f) != rec["sha256"]:
+            return f"capture {index} ({name}) is damaged: its checksum differs from the one recorded"
+        return None
+
+    def first_damaged_capture(self) -> tuple[int, str] | None:
+        """(index, problem) of the first capture that fails :meth:`check_capture`, or None."""
+        for i in range(len(self.captures)):
+            problem = self.check_capture(i)
+            if problem:
+                return i, problem
+        return None
+
+    def discard_captures(self, start: int, reason: str, count: int | None = None) -> list[dict[str, Any]]:
+        """Take captures ``start:`` (``count`` of them; all after ``start`` by default) out of the run, to be
+        captured again. Nothing is deleted: their files are renamed ``<name>.discarded-<n>`` and their
+        records kept under ``notes.discarded_captures``."""
+        stop = len(self.captures) if count is None else start + count
+        dropped = self.captures[start:stop]
+        n = len(self.data["notes"].get("discarded_captures", [])) + 1
+        for rec in dropped:
+            f = self.run_dir / rec["file"] if isinstance(rec.get("file"), str) else None
+            if f is not None and f.exists():
+                f.replace(f.with_name(f"{f.name}.discarded-{n}"))
+        artifacts.fsync_dir(self.run_dir)
+        self.data["notes"].setdefault("discarded_captures", []).append(
+            {"reason": reason, "time": _now(), "captures": dropped}
+        )
+        del self.data["captures"][start:stop]
+        self.save()
+        return dropped
 
 
 class RunContext:
@@ -116,6 +246,7 @@ class RunContext:
         pm: PluginManager,
         run_dir: Path,
         reporter: Reporter,
+        redo: tuple[str, ...] = (),
     ) -> None:
         self.loaded = loaded
         self.profile = loaded.profile
@@ -127,7 +258,10 @@ class RunContext:
         self.devices: dict[str, Any] = {}
         self.shared: dict[str, Any] = {}
         self.timings: dict[str, float] = {}
+        self.resumed = (run_dir / "state.json").is_file()
         self.state = RunState.load_or_new(run_dir / "state.json")
+        # --redo STEP: steps the operator asked to run again although they were done or interrupted
+        self.redo: set[str] = {self.state.match_step(k) for k in redo}
         self.figures: dict[str, Any] = {}
         self._stages: dict[str, Any] = {}
         self.rng = np.random.default_rng(self.profile.cell.seed)
@@ -166,19 +300,106 @@ class RunContext:
         return p
 
     def write_json(self, name: str, data: Any) -> Path:
-        return artifacts.write_json(self.path(name), data)
+        """Write JSON into the run folder (atomically, durably, secrets as references)."""
+        return artifacts.write_json(self.path(name), secrets.redact_obj(data))
 
     def write_text(self, name: str, text: str) -> Path:
-        return artifacts.write_text(self.path(name), text)
+        """Write text into the run folder (atomically, durably, secrets as references)."""
+        return artifacts.write_text(self.path(name), secrets.redact(text))
+
+    def save_figure(self, fig: Any, name: str, **kwargs: Any) -> Path:
+        """A matplotlib figure into the run folder (atomically, durably)."""
+        return artifacts.save_figure(fig, self.path(name), **kwargs)
+
+    def write_programs(
+        self, weld_path: dict, cell: dict[str, Any] | None = None, stem: str = "weld_path"
+    ) -> list[str]:
+        """Run every exporter of ``[output] exporters`` on a weld-path document; write its file(s) under
+        ``programs/``. ``cell`` fills exporter settings the profile does not set (a robot's
+        ``program_settings()``: its model, tool and the cell's limits, so programs are gate-checked for
+        that robot). A program the safety gate refuses is not written: the refusal is kept in
+        ``figures["programs_refused"]`` and told to the operator. Returns the files written."""
+        written = []
+        for spec in self.resolved["exporters"]:
+            given = self.resolved["exporter_settings"].get(spec.name)
+            settings = with_defaults(spec.settings, given, cell or {}) if spec.settings else given
+            try:
+                if spec.files is not None:
+                    files = spec.files(weld_path, settings)
+                else:
+                    files = {f"{stem}{spec.suffix}": spec.export(weld_path, settings)}
+            except SafetyError as e:
+                self.figures.setdefault("programs_refused", {})[spec.name] = e.message
+                self.reporter.info(f"[yellow]{spec.name}: no program written: {e.message}[/yellow]")
+                continue
+            for file_name, text in files.items():
+                self.write_text(f"programs/{file_name}", text)
+                written.append(f"programs/{file_name}")
+        return written
+
+    @property
+    def resume_command(self) -> str:
+        """The command that continues this run."""
+        return f"weldcell run {self.loaded.path} --resume {self.run_dir}"
+
+    def redoing(self, name: str) -> bool:
+        """The operator asked to run step ``name`` again (``--redo``)."""
+        return name in self.redo
+
+    def skip(self, name: str) -> bool:
+        """A ``motion`` or ``checkpointed`` step that is done and must not run again (no ``--redo``).
+
+        Jobs call it before such a step: ``if not ctx.skip(NAME): with ctx.step(NAME, kind="motion"): ...``
+        """
+        if self.state.step_done(name) and name not in self.redo:
+            self.reporter.info(f"[dim]{name}: done in an earlier attempt, not repeated[/dim]")
+            return True
+        return False
+
+    def _guard_motion(self, name: str) -> None:
+        rec = self.state.steps.get(name, {})
+        status = rec.get("status")
+        if name in self.redo or status is None:
+            return
+        if status == "done":
+            raise JobError(
+                f"step '{name}' moved the robot in an earlier attempt of this run; it is not repeated "
+                "automatically",
+                f"check the robot and the part; to run it again on purpose: `{self.resume_command} "
+                f"--redo '{step_key(name)}'`, or start a new run",
+            )
+        progress = f" ({rec['progress']})" if rec.get("progress") else ""
+        raise JobError(
+            f"step '{name}' was interrupted after it started{progress}: the robot may have moved or "
+            "welded part of it, so it is not repeated automatically",
+            f"check the robot and the part; then run it again from its start with `{self.resume_command} "
+            f"--redo '{step_key(name)}'`, or start a new run",
+        )
 
     @contextlib.contextmanager
-    def step(self, name: str, total: int | None = None) -> Iterator[Callable[..., None]]:
-        """Time a step, show its progress and record it in ``state.json``.
+    def step(
+        self, name: str, total: int | None = None, kind: str = "compute"
+    ) -> Iterator[Callable[..., None]]:
+        """Time a step, show its progress and record it (kind, status) in ``state.json``.
 
+        ``kind`` is ``compute`` (pure computation: recomputed on resume), ``motion`` (moves the robot or
+        welds: never repeated on resume without ``--redo``; see :meth:`skip`), ``checkpointed`` (moves
+        the robot but records its progress and continues from it) or ``setup`` (opening devices).
         Yields ``advance(done, total=None, message="")`` for progress inside the step.
         """
+        if kind not in STEP_KINDS:
+            raise ValueError(f"unknown step kind {kind!r}; use one of {STEP_KINDS}")
+        if kind == "motion":
+            self._guard_motion(name)
         self.reporter.step_started(name, total)
-        self.state.data["steps"][name] = {"status": "running"}
+        prev = self.state.steps.get(name, {})
+        self.state.steps[name] = {
+            "kind": kind,
+            "status": "running",
+            "started": _now(),
+            "attempts": int(prev.get("attempts", 0)) + 1,
+            **({"redone": True} if name in self.redo else {}),
+        }
         self.state.save()
         t0 = time.perf_counter()
 
@@ -188,16 +409,14 @@ class RunContext:
         try:
             yield advance
         except BaseException as e:
-            self.state.data["steps"][name] = {
-                "status": "failed",
-                "error": str(e).splitlines()[0] if str(e) else type(e).__name__,
-            }
-            self.state.save()
+            status = "interrupted" if isinstance(e, KeyboardInterrupt) else "failed"
+            text = secrets.redact(str(e).splitlines()[0] if str(e) else type(e).__name__)
+            self.state.set_step(name, status=status, error=text, finished=_now())
             raise
         dt = time.perf_counter() - t0
         self.timings[name] = self.timings.get(name, 0.0) + dt
-        self.state.data["steps"][name] = {"status": "done", "seconds": round(dt, 4)}
-        self.state.save()
+        self.state.set_step(name, status="done", seconds=round(dt, 4), finished=_now())
+        self.redo.discard(name)
         self.reporter.step_finished(name, dt)
 
 
@@ -226,14 +445,39 @@ def provenance(ctx: RunContext) -> dict[str, Any]:
             k: {"plugin": p.plugin, "distribution": p.distribution, "version": p.version}
             for k, p in used.items()
         },
-        "settings": {
-            "job": ctx.settings.model_dump(mode="json") if ctx.settings is not None else {},
-            "stages": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["stages"].items()},
-            "devices": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["devices"].items()},
-            "cell": ctx.profile.cell.model_dump(mode="json"),
-        },
+        "settings": settings_with_references(ctx),
+        "secrets": secrets.known_references(),
         "timings_s": {k: round(v, 4) for k, v in ctx.timings.items()},
     }
+
+
+def settings_with_references(ctx: RunContext) -> dict[str, Any]:
+    """The run's settings as used, with every ``${env:NAME}`` value written as its reference."""
+    out = {
+        "job": ctx.settings.model_dump(mode="json") if ctx.settings is not None else {},
+        "stages": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["stages"].items()},
+        "devices": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["devices"].items()},
+        "cell": ctx.profile.cell.model_dump(mode="json"),
+    }
+    for key, written in getattr(ctx.loaded, "secrets", {}).items():
+        # profile key path -> where the same value sits in the dump above
+        if key[:1] == ("job",) and key[1:2] == ("settings",):
+            where = (out["job"], key[2:])
+        elif key[:1] in (("devices",), ("stages",)) and len(key) > 3 and key[2] == "settings":
+            where = (out[key[0]].get(key[1], {}), key[3:])
+        elif key[:1] == ("cell",):
+            where = (out["cell"], key[1:])
+        else:
+            continue
+        node, rest = where
+        for k in rest[:-1]:
+            node = node[int(k)] if isinstance(node, list) and k.isdigit() else node.get(k, {})
+        last = rest[-1] if rest else None
+        if isinstance(node, dict) and last in node:
+            node[last] = written
+        elif isinstance(node, list) and last is not None and last.isdigit() and int(last) < len(node):
+            node[int(last)] = written
+    return secrets.redact_obj(out)
 
 
 def prepare(profile_path: str | Path, pm: PluginManager) -> tuple[LoadedProfile, dict[str, Any]]:
@@ -270,9 +514,23 @@ def open_devices(ctx: RunContext, stack: contextlib.ExitStack) -> None:
             safety=p.cell.safety,
             seed=p.cell.seed,
         )
-        with ctx.step(f"open {role} ({spec.name})"):
+        with ctx.step(f"open {role} ({spec.name})", kind="setup"):
             device = spec.factory(settings, dctx)
             ctx.devices[role] = stack.enter_context(device)
+
+
+def _device_fix(e: DeviceError, profile_path: str | Path, run: Path) -> str:
+    """The fix of a device that dropped during a job: the device's own advice (unless it is an API hint
+    such as 'call recover()') and the command that resumes the run."""
+    own = e.fix if e.fix and "()" not in e.fix else "check its power, cable and network connection"
+    return f"{own}; what was captured is kept: continue with `weldcell run {profile_path} --resume {run}`"
+
+
+def _check_resume(ctx: RunContext, profile_path: str | Path) -> None:
+    """Refuse a resume that would repeat an interrupted motion step (before any device opens)."""
+    pending = [n for n in ctx.state.interrupted_motions() if n not in ctx.redo]
+    if pending:
+        ctx._guard_motion(pending[0])
 
 
 def run_job(
@@ -283,12 +541,24 @@ def run_job(
     runs_dir: str | Path | None = None,
     reporter: Reporter | None = None,
     overrides: Callable[[LoadedProfile], None] | None = None,
+    redo: tuple[str, ...] | list[str] = (),
 ) -> tuple[Path, dict[str, Any]]:
     """Run the job of a profile; returns the run folder and the result dict.
 
-    ``run_dir`` resumes an existing run folder. Raises a :class:`WeldcellError` subclass on
-    failure, after writing what was captured; ``result.json`` then holds the error.
+    ``run_dir`` resumes an existing run folder where it stopped; ``redo`` names steps to run again
+    although they were done or interrupted (``--redo``; only with ``run_dir``). Raises a
+    :class:`WeldcellError` subclass on failure, after writing what was captured; ``result.json`` then
+    holds the error. No message or file holds a ``${env:NAME}`` secret's value.
     """
+    secrets.install_log_redaction()
+    try:
+        return _run_job(profile_path, pm, run_dir, runs_dir, reporter, overrides, tuple(redo))
+    except WeldcellError as e:
+        secrets.redact_error(e)
+        raise
+
+
+def _run_job(profile_path, pm, run_dir, runs_dir, reporter, overrides, redo):
     loaded, resolved = prepare(profile_path, pm)
     if overrides:
         overrides(loaded)
@@ -297,21 +567,33 @@ def run_job(
         if not (run / "state.json").is_file():
             raise JobError(f"{run} is not a run folder (no state.json)", "give the folder of an earlier run")
     else:
+        if redo:
+            raise UsageError("--redo needs --resume RUN_DIR", "name the run folder whose step to run again")
         run = new_run_dir(loaded, runs_dir)
-    ctx = RunContext(loaded, resolved, pm, run, reporter or Reporter())
+    ctx = RunContext(loaded, resolved, pm, run, reporter or Reporter(), redo=redo)
+    _check_resume(ctx, profile_path)
     spec = resolved["job_spec"]
-    started = datetime.now(UTC).isoformat()
+    attempts = ctx.state.data.setdefault("attempts", [])
+    attempts.append({"started": _now(), "redo": sorted(ctx.redo)})
+    ctx.state.save()
     result: dict[str, Any] = {
         "schema": RESULT_SCHEMA,
         "job": spec.name,
         "profile": loaded.profile.name,
-        "started": started,
+        "started": attempts[0]["started"],
+        "attempt": len(attempts),
     }
+    if len(attempts) > 1:
+        result["resumed"] = {"attempt_started": attempts[-1]["started"], "redo": sorted(ctx.redo)}
     try:
         with contextlib.ExitStack() as stack:
             open_devices(ctx, stack)
             figures = spec.run(ctx) or {}
         result.update(status="ok", figures=figures)
+    except DeviceError as e:
+        e.fix = _device_fix(e, profile_path, run)
+        result.update(status="failed", error={"type": type(e).__name__, "message": e.message, "fix": e.fix})
+        raise
     except WeldcellError as e:
         result.update(status="failed", error={"type": type(e).__name__, "message": e.message, "fix": e.fix})
         raise
@@ -328,11 +610,15 @@ def run_job(
         result.update(status="failed", error={"type": type(e).__name__, "message": str(e)})
         raise JobError(
             f"job '{spec.name}' failed: {type(e).__name__}: {e}",
-            f"captures so far are kept in {run}; rerun with --debug for the traceback",
+            f"captures so far are kept in {run}; rerun with --debug for the traceback, then continue with "
+            f"`weldcell run {profile_path} --resume {run}`",
         ) from e
     finally:
         result["finished"] = datetime.now(UTC).isoformat()
         result["provenance"] = provenance(ctx)
         result["figures"] = {**ctx.figures, **result.get("figures", {})}
+        attempts[-1].update(finished=_now(), status=result.get("status", "failed"))
+        ctx.state.save()
+        result = secrets.redact_obj(result)
         artifacts.write_json(run / "result.json", result)
     return run, result

@@ -113,6 +113,9 @@ class LoadedProfile:
     path: Path
     sources: dict[tuple[str, ...], Path] = field(default_factory=dict)
     files: list[Path] = field(default_factory=list)
+    # key path -> the text as written, for every value that holds a ``${env:NAME}`` reference: run
+    # folders and messages record the reference, never the substituted secret (weldcell.sdk.secrets)
+    secrets: dict[tuple[str, ...], str] = field(default_factory=dict)
 
     def source_of(self, keypath: tuple[str, ...]) -> Path:
         """The file that set ``keypath`` (the nearest set parent key, else the profile itself)."""
@@ -145,13 +148,63 @@ def _mark(v: Any, src: Path, sources: dict, key: tuple[str, ...]) -> None:
             _mark(v2, src, sources, (*key, k2))
 
 
+#: how many profiles an ``extends`` chain may hold (a deeper chain is a mistake, or a generated attack)
+MAX_EXTENDS_DEPTH = 32
+_MAX_PROFILE_BYTES = 4 << 20
+
+
 def _read_toml(path: Path) -> dict:
     if not path.is_file():
         raise ProfileError(f"profile not found: {path}", "check the path (profiles live in profiles/)")
     try:
-        return tomllib.loads(path.read_text())
+        if path.stat().st_size > _MAX_PROFILE_BYTES:
+            raise ProfileError(f"{path}: {path.stat().st_size} bytes is no profile", "check the path")
+        raw = path.read_bytes()
+    except OSError as e:
+        raise ProfileError(f"cannot read profile {path}: {e.strerror}", "check its permissions") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ProfileError(
+            f"{path}: not UTF-8 text (byte {e.start} is 0x{raw[e.start]:02x}); is it a binary file?",
+            "save the profile as UTF-8 text (a TOML file)",
+        ) from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ProfileError(f"{path}: not valid TOML: {e}", "fix the TOML syntax at that line") from None
+    except RecursionError:
+        data = None
+    if data is None or _nesting(data) > _MAX_NESTING:
+        raise ProfileError(
+            f"{path}: tables or arrays nested deeper than {_MAX_NESTING} levels",
+            "no profile needs that; fix the file",
+        )
+    return data
+
+
+_MAX_NESTING = 64
+
+
+def _nesting(value: Any) -> int:
+    """How deep tables and arrays nest in ``value`` (iterative: no recursion limit to hit)."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        deepest = max(deepest, d)
+        if d > _MAX_NESTING:
+            break
+        if isinstance(v, dict):
+            stack.extend((x, d + 1) for x in v.values())
+        elif isinstance(v, list):
+            stack.extend((x, d + 1) for x in v)
+    return deepest
+
+
+def read_profile_file(path: str | Path) -> dict:
+    """The TOML table of one profile file (no ``extends``, no validation); ProfileError when it is
+    missing, not UTF-8 text, not TOML or absurdly nested."""
+    return _read_toml(Path(path))
 
 
 def _load_chain(path: Path, sources: dict, files: list[Path], seen: tuple[Path, ...] = ()) -> dict:
@@ -159,11 +212,21 @@ def _load_chain(path: Path, sources: dict, files: list[Path], seen: tuple[Path, 
     if path in seen:
         chain = " -> ".join(str(p) for p in (*seen, path))
         raise ProfileError(f"profiles extend each other in a cycle: {chain}", "remove one 'extends'")
+    if len(seen) >= MAX_EXTENDS_DEPTH:
+        raise ProfileError(
+            f"{seen[0]}: the 'extends' chain is deeper than {MAX_EXTENDS_DEPTH} profiles (at {path})",
+            f"extend at most {MAX_EXTENDS_DEPTH} levels: merge some base profiles into one",
+        )
     data = _read_toml(path)
     files.append(path)
     merged: dict = {}
     if "extends" in data:
-        base_path = (path.parent / str(data["extends"])).resolve()
+        if not isinstance(data["extends"], str) or not data["extends"].strip():
+            raise ProfileError(
+                f"{path}: extends: {data['extends']!r} is not a file name",
+                'write extends = "base.toml" (a path relative to this file)',
+            )
+        base_path = (path.parent / data["extends"]).resolve()
         if not base_path.is_file():
             raise ProfileError(
                 f"{path}: extends: base profile not found: {base_path}",
@@ -178,20 +241,31 @@ def _load_chain(path: Path, sources: dict, files: list[Path], seen: tuple[Path, 
     return merged
 
 
-def _substitute_env(value: Any, keypath: tuple[str, ...], problems: list[tuple[tuple[str, ...], str]]) -> Any:
+def _substitute_env(
+    value: Any,
+    keypath: tuple[str, ...],
+    problems: list[tuple[tuple[str, ...], str]],
+    found: dict[tuple[str, ...], str] | None = None,
+) -> Any:
+    """Substitute ``${env:NAME}``; ``found`` collects key path -> text as written, and every value is
+    registered with :mod:`weldcell.sdk.secrets` so that no output ever shows it."""
     if isinstance(value, dict):
-        return {k: _substitute_env(v, (*keypath, k), problems) for k, v in value.items()}
+        return {k: _substitute_env(v, (*keypath, k), problems, found) for k, v in value.items()}
     if isinstance(value, list):
-        return [_substitute_env(v, (*keypath, str(i)), problems) for i, v in enumerate(value)]
-    if isinstance(value, str):
+        return [_substitute_env(v, (*keypath, str(i)), problems, found) for i, v in enumerate(value)]
+    if isinstance(value, str) and _ENV.search(value):
+        from weldcell.sdk import secrets
 
         def repl(m: re.Match) -> str:
             name = m.group(1)
             if name not in os.environ:
                 problems.append((keypath, f"environment variable {name} is not set; export {name}=... first"))
                 return ""
+            secrets.register(os.environ[name], m.group(0))
             return os.environ[name]
 
+        if found is not None:
+            found[keypath] = value
         return _ENV.sub(repl, value)
     return value
 
@@ -231,8 +305,10 @@ def load_profile(path: str | Path) -> LoadedProfile:
     files: list[Path] = []
     raw = _load_chain(path, sources, files)
     env_problems: list[tuple[tuple[str, ...], str]] = []
-    raw = _substitute_env(raw, (), env_problems)
+    found: dict[tuple[str, ...], str] = {}
+    raw = _substitute_env(raw, (), env_problems, found)
     loaded = LoadedProfile(profile=None, path=path.resolve(), sources=sources, files=files)  # type: ignore[arg-type]
+    loaded.secrets = found
     problems = list(env_problems)
     try:
         loaded.profile = Profile.model_validate(raw)
@@ -248,7 +324,10 @@ def load_profile(path: str | Path) -> LoadedProfile:
 
 
 def _profile_error(loaded: LoadedProfile, problems: list[tuple[tuple[str, ...], str]]) -> ProfileError:
-    lines = [f"{loaded.source_of(k)}: {_fmt(k)}: {msg}" for k, msg in problems]
+    from weldcell.sdk.secrets import redact
+
+    # a secret in a wrongly typed key is named by its reference ("cannot read '${env:TOKEN}' as a length")
+    lines = [redact(f"{loaded.source_of(k)}: {_fmt(k)}: {msg}") for k, msg in problems]
     return ProfileError(
         f"profile {loaded.path} is invalid ({len(lines)} problem{'s' if len(lines) != 1 else ''})",
         "fix the keys listed; `weldcell profiles validate FILE` checks again",

@@ -9,13 +9,12 @@ skipped and listed. Exit codes are those of :mod:`weldcell.sdk.cli`.
 
 from __future__ import annotations
 
-import json
 import tempfile
-import tomllib
 from pathlib import Path
 
 import click
 import numpy as np
+from weldcell.sdk.datafile import check_keys, expect_object, read_json_file, read_toml_file
 from weldcell.sdk.errors import DataError, UsageError
 
 LAYOUTS = ("auto", "weldcell", "ancorasir-sample", "ancorasir-pairs", "ancorasir-kinect")
@@ -45,19 +44,6 @@ def detect_layout(path: Path) -> str:
     )
 
 
-def _samples_json_with_units(path: Path, units: str) -> Path:
-    """A copy of ``samples.json`` declaring ``units`` (cloud/image paths made absolute)."""
-    doc = json.loads(path.read_text())
-    doc["units"] = units
-    for s in doc.get("samples", []):
-        for k in ("cloud", "image"):
-            if s.get(k):
-                s[k] = str((path.parent / s[k]).resolve())
-    tmp = Path(tempfile.mkdtemp(prefix="weldcell-he-")) / "samples.json"
-    tmp.write_text(json.dumps(doc))
-    return tmp
-
-
 def read_data(path: Path, layout: str = "auto", units: str | None = None):
     """Samples of any supported layout as a :class:`~weldcell.plugins.handeye.samples_io.SampleSet`."""
     from weldcell.plugins.handeye import samples_io as io
@@ -67,9 +53,9 @@ def read_data(path: Path, layout: str = "auto", units: str | None = None):
         f = path if path.is_file() else path / "samples.json"
         if not f.is_file():
             raise UsageError(f"{f} not found", "give a folder with samples.json or the file itself")
-        if units is not None and json.loads(f.read_text()).get("units", "m") != units:
-            ss = io.read_samples(_samples_json_with_units(f, units))
-            ss.root = f.parent
+        doc = read_json_file(f, "samples file")
+        if units is not None and isinstance(doc, dict) and doc.get("units", "m") != units:
+            ss = io.read_samples(f, units=units)
             ss.notes.append(f"lengths read as {units} (--units)")
             return ss
         return io.read_samples(f)
@@ -86,29 +72,60 @@ def _stage_settings(settings_file: Path | None, overrides: dict):
     from weldcell.plugins.handeye.stages import FlangeSettings
 
     values: dict = {}
+    where = "flange settings"
     if settings_file is not None:
-        if not settings_file.is_file():
-            raise UsageError(f"settings file not found: {settings_file}", "check the path")
-        text = settings_file.read_text()
-        values = tomllib.loads(text) if settings_file.suffix == ".toml" else json.loads(text)
-        if "extends" in values or "schema" in values:  # a profile: its extends chain counts
-            from weldcell.sdk.profile import load_profile
-
-            stage = load_profile(settings_file).profile.stages.get("handeye")
-            values = {"stages": {"handeye": {"settings": dict(stage.settings) if stage else {}}}}
-        values = values.get("stages", {}).get("handeye", {}).get("settings", values)
-        values = {k: v for k, v in values.items() if k in FlangeSettings.model_fields}
+        values, where = _read_settings_file(settings_file), str(settings_file)
+        check_keys(values, FlangeSettings.model_fields, f"{where}: handeye.flange settings")
     values.update({k: v for k, v in overrides.items() if v is not None})
     from pydantic import ValidationError
+    from weldcell.sdk.profile import pydantic_problems
 
     try:
         return FlangeSettings.model_validate(values)
     except ValidationError as e:
-        first = e.errors()[0]
+        problems = pydantic_problems(e)
+        key, msg = problems[0]
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise UsageError(
-            f"flange settings: {'.'.join(map(str, first['loc']))}: {first['msg']}",
+            f"{where}: {'.'.join(key)}: {msg}{more}",
             "fix the value (see docs/methods/hand-eye.md)",
         ) from None
+
+
+_PROFILE_KEYS = (
+    "schema",
+    "extends",
+    "name",
+    "job",
+    "devices",
+    "stages",
+    "cell",
+    "calibration",
+    "sim",
+    "output",
+)
+
+
+def _read_settings_file(path: Path) -> dict:
+    """The handeye.flange settings of a ``--settings`` file: a flat TOML/JSON table of settings, a
+    file with ``[stages.handeye.settings]``, or a profile (its ``extends`` chain counts)."""
+    if path.suffix.lower() not in (".toml", ".json"):
+        raise UsageError(f"--settings {path}: not a .toml or .json file", "give a TOML or JSON settings file")
+    values = read_toml_file(path, "settings file") if path.suffix.lower() == ".toml" else None
+    if values is None:
+        values = expect_object(read_json_file(path, "settings file"), str(path), '{"flange_d1": 63}')
+    if "extends" in values or "schema" in values:  # a profile: its extends chain counts
+        from weldcell.sdk.profile import load_profile
+
+        stage = load_profile(path).profile.stages.get("handeye")
+        return dict(stage.settings) if stage else {}
+    if "stages" in values or "job" in values:
+        check_keys(values, _PROFILE_KEYS, str(path))
+        stages = expect_object(values.get("stages", {}), f"{path}: stages")
+        stage = expect_object(stages.get("handeye", {}), f"{path}: stages.handeye")
+        check_keys(stage, ("plugin", "settings"), f"{path}: stages.handeye")
+        return dict(expect_object(stage.get("settings", {}), f"{path}: stages.handeye.settings"))
+    return values
 
 
 def measure_scans(ss, stage, need_pose: bool) -> list[str]:
@@ -280,6 +297,10 @@ def hand_eye(
 
     if flange_model is not None and not flange_model.is_file():
         raise UsageError(f"flange model not found: {flange_model}", "give an STL/PCD/PLY file of the flange")
+    if flange_model is not None and flange_model.suffix.lower() in (".ply", ".pcd"):
+        from weldcell.sdk.cloudfile import check_cloud_file
+
+        check_cloud_file(flange_model)  # header and body checked before anything is computed
     s = _stage_settings(
         settings_file,
         {
@@ -339,11 +360,28 @@ def hand_eye(
     lines = summary_lines(result)
     lines += [f"note            {n}" for n in notes]
     if report_dir is not None:
-        written = write_offline_report(report_dir, result, lines)
+        written = _write_report(report_dir, result, lines, write_offline_report)
         lines.append(f"report          {report_dir}/ ({', '.join(written)})")
     if not quiet:
         out.print("\n".join(lines), markup=False)
     out.print(f"wrote {output}", markup=False)
+
+
+def _write_report(report_dir: Path, result, lines: list[str], writer) -> list[str]:
+    """The offline report written into a scratch folder, then each file moved into ``report_dir``
+    atomically and durably: a crash leaves the old or the new file, never half of one."""
+    import shutil
+
+    from weldcell.sdk.artifacts import write_bytes
+
+    scratch = Path(tempfile.mkdtemp(prefix="weldcell-report-"))
+    try:
+        written = writer(scratch, result, lines)
+        for name in written:
+            write_bytes(report_dir / name, (scratch / name).read_bytes())
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return written
 
 
 def _verification_sample(ss, stage, index: int | None):

@@ -421,7 +421,7 @@ def _verification(ctx, stage, T_v: np.ndarray, seed: int):
             P = read_cloud(ctx.run_dir / rec["file"], units="m", frame="camera", check_scale=False).points
             m = stage.measure(P, seed=seed)
             return m.face, np.asarray(rec["T_base_flange"], float)
-    with ctx.step("verification scan (eq. 13)"):
+    with ctx.step("verification scan (eq. 13)", kind="checkpointed"):
         rec = _scan(ctx, stage, T_v, "verification", None, seed)
         ctx.state.add_capture({"kind": "verification", **_record_public(rec)})
     if rec["status"] != "ok":
@@ -468,6 +468,33 @@ def _tracker(ctx, config: str, stage, T_v: np.ndarray | None, seed: int):
     return _PoolTracker(pool, np.asarray(flange.s.feature, float)), verification
 
 
+POSES = "calibration poses (scan + flange + fit)"
+
+
+def _check_captures(ctx) -> None:
+    """On resume: every recorded capture against its size and SHA-256. While the pose loop is open a
+    damaged one is set aside and its pose visited again (a gated free-space move, no contact); once the
+    loop had finished, a damaged capture stops the run (``--redo 'calibration poses'`` visits all again)."""
+    st = ctx.state
+    if ctx.redoing(POSES) and st.captures:
+        ctx.reporter.info(f"--redo: {len(st.captures)} earlier capture(s) set aside; all poses visited again")
+        st.discard_captures(0, "--redo calibration poses")
+        return
+    for i in reversed(range(len(st.captures))):
+        problem = st.check_capture(i)
+        if not problem:
+            continue
+        if st.step_done(POSES):
+            raise DataError(
+                f"{problem}; the calibration poses were finished, so they are not visited again "
+                "automatically",
+                f"restore the file, or visit every pose again with `{ctx.resume_command} --redo "
+                "'calibration poses'`",
+            )
+        ctx.reporter.info(f"[yellow]{problem}: that pose is visited and captured again[/yellow]")
+        st.discard_captures(i, problem, count=1)
+
+
 def run(ctx) -> dict:
     """The whole job; returns the figures written into result.json."""
     from weldcell.plugins.handeye.report import write_report
@@ -483,6 +510,7 @@ def run(ctx) -> dict:
         poses, T_v = plan_poses(s.box_min, s.box_max, s.n_poses, toward, s.max_tilt, s.max_spin, seed)
     truth = ground_truth(ctx, config)
 
+    _check_captures(ctx)
     done = {rec["index"]: rec for rec in ctx.state.captures if rec.get("kind") == "pose"}
     if done:
         ctx.reporter.info(f"resuming with {len(done)} pose(s) already visited")
@@ -499,7 +527,7 @@ def run(ctx) -> dict:
 
     notes: list[str] = []
     stop = "poses exhausted"
-    with ctx.step("calibration poses (scan + flange + fit)", total=len(poses)) as advance:
+    with ctx.step(POSES, total=len(poses), kind="checkpointed") as advance:
         for i, T_goal in enumerate(poses):
             if i in done:
                 rec = done[i]

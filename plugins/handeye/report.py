@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 from weldcell.plugins.handeye.result import HandEyeResult
+from weldcell.sdk.artifacts import save_figure, write_text
 from weldcell.sdk.geometry import T_to_rpy, pose_error
 
 
@@ -121,7 +122,7 @@ def _plots(folder: Path, result: HandEyeResult, track: list[dict], truth) -> lis
     ax.legend()
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    fig.savefig(folder / "residuals.png", dpi=110)
+    save_figure(fig, folder / "residuals.png", dpi=110)
     plt.close(fig)
     written.append("residuals.png")
 
@@ -160,7 +161,7 @@ def _plots(folder: Path, result: HandEyeResult, track: list[dict], truth) -> lis
                 ax.legend()
             axes[1].set_title("error against the number of samples (cf. Fig. 10/11)")
         fig.tight_layout()
-        fig.savefig(folder / "convergence.png", dpi=110)
+        save_figure(fig, folder / "convergence.png", dpi=110)
         plt.close(fig)
         written.append("convergence.png")
     return written
@@ -194,8 +195,9 @@ def write_offline_report(folder: Path, result: HandEyeResult, summary: list[str]
     folder.mkdir(parents=True, exist_ok=True)
     pictures = _plots(folder, result, [], None)
     text = "\n".join(summary) + "\n"
-    (folder / "summary.txt").write_text(text)
-    (folder / "report.md").write_text(
+    write_text(folder / "summary.txt", text)
+    write_text(
+        folder / "report.md",
         "\n".join(
             [
                 "# Hand-eye calibration report",
@@ -207,6 +209,6 @@ def write_offline_report(folder: Path, result: HandEyeResult, summary: list[str]
                 *[f"![{p[:-4]}]({p})" for p in pictures],
             ]
         )
-        + "\n"
+        + "\n",
     )
     return ["summary.txt", "report.md", *pictures]

@@ -7,8 +7,11 @@ from typing import Any
 
 import numpy as np
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.geometry import is_rigid
 
 SCHEMA = "weldcell/hand-eye@1"
+#: a hand-eye translation beyond this (m) is no cell's camera mount: the file holds millimetres
+MAX_TRANSLATION = 20.0
 CONVENTION = "p_a = T_a_b @ p_b (T_a_b maps coordinates in frame b into frame a); metres, radians"
 
 #: configuration -> (name of the transform solved for, what it means) (§2.1.1)
@@ -112,22 +115,64 @@ class HandEyeResult:
         }
 
     @classmethod
-    def from_json(cls, doc: dict) -> HandEyeResult:
-        """Read a ``weldcell/hand-eye@1`` document."""
+    def from_json(cls, doc: dict, where: str = "hand-eye result") -> HandEyeResult:
+        """Read a ``weldcell/hand-eye@1`` document; DataError (naming ``where``, the file) for a wrong
+        schema, a missing or mistyped key, a ``T`` that is not a finite rigid 4x4, or lengths that do
+        not fit the declared units."""
+        from weldcell.sdk.datafile import as_matrix, expect_object, kind_of
+
+        expect_object(doc, where, '{"schema": "weldcell/hand-eye@1", "T": [[...4x4...]], ...}')
         if doc.get("schema") != SCHEMA:
-            raise DataError(f"not a hand-eye result (schema {doc.get('schema')!r})", f"expected '{SCHEMA}'")
-        T = np.asarray(doc["T"], float)
-        if T.shape != (4, 4):
-            raise DataError("hand-eye result T is not 4x4", "write the file again")
+            raise DataError(
+                f"{where}: not a hand-eye result (schema {doc.get('schema')!r})", f"expected '{SCHEMA}'"
+            )
+        fix = "write the file again with `weldcell calibrate hand-eye`"
+        for k in ("T", "transform", "config", "method"):
+            if k not in doc:
+                raise DataError(f"{where}: no '{k}'", fix)
+        for k in ("transform", "config", "method"):
+            if not isinstance(doc[k], str):
+                raise DataError(f"{where}: '{k}' is {kind_of(doc[k])}, not text", fix)
+        if doc["transform"].count("_") < 2:
+            raise DataError(f"{where}: transform {doc['transform']!r} is not a name like T_base_camera", fix)
+        T = as_matrix(doc["T"], (4, 4), f"{where}: T", fix)
+        if not is_rigid(T, tol=1e-4):
+            raise DataError(f"{where}: T is not a rigid transform (rotation not orthonormal)", fix)
+        units = doc.get("units", "m")
+        if units != "m":
+            raise DataError(f"{where}: units {units!r}; hand-eye results are in metres", 'write "units": "m"')
+        if np.linalg.norm(T[:3, 3]) > MAX_TRANSLATION:
+            raise DataError(
+                f"{where}: T moves {np.linalg.norm(T[:3, 3]):.4g} m; that is millimetres, not metres",
+                "divide the translation by 1000 (hand-eye results are in metres)",
+            )
+        extra_maps = {k: doc.get(k, {}) for k in ("metrics", "settings", "extra")}
+        for k, v in extra_maps.items():
+            expect_object(v, f"{where}: {k}")
+        residuals = doc.get("residuals_m", [])
+        inliers = doc.get("inliers", [])
+        if (
+            not isinstance(residuals, list)
+            or not isinstance(inliers, list)
+            or (inliers and len(inliers) != len(residuals))
+        ):
+            raise DataError(f"{where}: residuals_m and inliers must be lists of one value per sample", fix)
+        try:
+            res = np.asarray([np.nan if r is None else r for r in residuals], float)
+        except (TypeError, ValueError):
+            raise DataError(f"{where}: residuals_m holds values that are not numbers", fix) from None
+        warnings = doc.get("warnings", [])
+        if not isinstance(warnings, list):
+            raise DataError(f"{where}: warnings is {kind_of(warnings)}, not a list", fix)
         return cls(
             T=T,
             name=doc["transform"],
             config=doc["config"],
             method=doc["method"],
-            residuals=np.asarray(doc.get("residuals_m", []), float),
-            inliers=np.asarray(doc.get("inliers", []), bool),
-            metrics=doc.get("metrics", {}),
-            settings=doc.get("settings", {}),
-            extra=doc.get("extra", {}),
-            warnings=doc.get("warnings", []),
+            residuals=res,
+            inliers=np.asarray(inliers, bool),
+            metrics=extra_maps["metrics"],
+            settings=extra_maps["settings"],
+            extra=extra_maps["extra"],
+            warnings=[str(w) for w in warnings],
         )

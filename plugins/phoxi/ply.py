@@ -13,26 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from weldcell.sdk.cloudfile import HEADER_LIMIT, check_ply, parse_ply_header
 from weldcell.sdk.errors import DataError
 
-_PLY_TYPES = {
-    "char": "i1",
-    "int8": "i1",
-    "uchar": "u1",
-    "uint8": "u1",
-    "short": "i2",
-    "int16": "i2",
-    "ushort": "u2",
-    "uint16": "u2",
-    "int": "i4",
-    "int32": "i4",
-    "uint": "u4",
-    "uint32": "u4",
-    "float": "f4",
-    "float32": "f4",
-    "double": "f8",
-    "float64": "f8",
-}
+_REEXPORT = "the export is damaged or cut short; export it again"
 
 
 @dataclass
@@ -55,39 +39,6 @@ class PlyGrid:
         return np.asarray(arr).reshape(self.rows, self.cols, *np.asarray(arr).shape[1:])
 
 
-def _parse_header(
-    path: Path, raw: bytes
-) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], list[str], int]:
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise DataError(f"{path} is not a PLY file (no 'ply' magic / 'end_header')", "export the scan as PLY")
-    nl = raw.find(b"\n", end)
-    body_start = nl + 1 if nl >= 0 else len(raw)
-    lines = raw[:end].decode("ascii", "replace").splitlines()
-    fmt = ""
-    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
-    for line in lines:
-        tok = line.split()
-        if not tok:
-            continue
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "element":
-            elements.append((tok[1], int(tok[2]), []))
-        elif tok[0] == "property":
-            if not elements:
-                raise DataError(f"{path}: property before any element", "the PLY header is malformed")
-            if tok[1] == "list":
-                elements[-1][2].append(("list", tok[-1]))
-            else:
-                if tok[1] not in _PLY_TYPES:
-                    raise DataError(f"{path}: unknown PLY property type {tok[1]!r}", "re-export the scan")
-                elements[-1][2].append((_PLY_TYPES[tok[1]], tok[2]))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise DataError(f"{path}: unsupported PLY format {fmt!r}", "export as ascii or binary PLY")
-    return fmt, elements, lines, body_start
-
-
 def read_ply_grid(path: str | Path) -> PlyGrid:
     """Read a PLY export with its grid organisation (see the module docstring)."""
     path = Path(path)
@@ -95,7 +46,10 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
         raw = path.read_bytes()
     except OSError as e:
         raise DataError(f"cannot read {path}: {e}", "check the file path in the phoxi settings") from e
-    fmt, elements, lines, pos = _parse_header(path, raw)
+    check_ply(path, raw[:HEADER_LIMIT], len(raw))  # header, x/y/z, counts against the body, numbers
+    h = parse_ply_header(path, raw[:HEADER_LIMIT])
+    fmt, lines, pos = h.fmt, h.lines, h.body_start
+    elements = [(e.name, e.count, e.props) for e in h.elements]
     values: dict[str, dict[str, np.ndarray]] = {}
     if fmt == "ascii":
         text = raw[pos:].decode("ascii", "replace").splitlines()
@@ -115,7 +69,12 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
                     f"{path}: file ends after {len(block)} of {count} '{name}' rows",
                     "the export is truncated; export it again",
                 )
-            arr = np.array(" ".join(block).split(), dtype=np.float64)
+            try:
+                arr = np.array(" ".join(block).split(), dtype=np.float64)
+            except ValueError:
+                raise DataError(
+                    f"{path}: a '{name}' row holds a value that is not a number", _REEXPORT
+                ) from None
             if arr.size != count * len(props):
                 raise DataError(
                     f"{path}: '{name}' rows do not have {len(props)} values each", "the export is malformed"
@@ -137,7 +96,8 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
                 raise DataError(f"{path}: file ends inside the '{name}' element", "the export is truncated")
             rec = np.frombuffer(raw, dtype=dt, count=count, offset=pos)
             pos += need
-            values[name] = {p: rec[p].astype(np.float64) for _, p in props}
+            with np.errstate(invalid="ignore"):  # damaged values become NaN/inf; callers check them
+                values[name] = {p: rec[p].astype(np.float64) for _, p in props}
     vertex = values.get("vertex")
     if vertex is None or not all(k in vertex for k in "xyz"):
         raise DataError(f"{path}: no vertex x/y/z", "export the point cloud (not a mesh-only file)")
@@ -147,8 +107,8 @@ def read_ply_grid(path: str | Path) -> PlyGrid:
     header_text = "\n".join(lines)
     m_cols = re.search(r"(?:obj_info\s+num_cols|comment\s+width)\s+(\d+)", header_text, re.I)
     m_rows = re.search(r"(?:obj_info\s+num_rows|comment\s+height)\s+(\d+)", header_text, re.I)
-    if cam is not None and "viewportx" in cam and "viewporty" in cam:
-        cols, rows = int(cam["viewportx"][0]), int(cam["viewporty"][0])
+    if cam is not None and "viewportx" in cam and "viewporty" in cam and len(cam["viewportx"]):
+        cols, rows = (int(v) if np.isfinite(v) else 0 for v in (cam["viewportx"][0], cam["viewporty"][0]))
     elif m_cols and m_rows:
         cols, rows = int(m_cols.group(1)), int(m_rows.group(1))
     if rows * cols != n:

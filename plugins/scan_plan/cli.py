@@ -20,16 +20,16 @@ from typing import Any
 import click
 import numpy as np
 from pydantic import ValidationError
-from weldcell.sdk.artifacts import read_json, write_json
-from weldcell.sdk.cloud import UNIT_SCALE, PointCloud, check_units, drop_invalid, write_cloud
+from weldcell.sdk.artifacts import save_figure, write_json, write_text
+from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, UsageError
-from weldcell.sdk.geometry import T_from_rpy, is_rigid, rotation_angle
-from weldcell.sdk.scan import PosedScan
+from weldcell.sdk.geometry import T_from_rpy, rotation_angle
 from weldcell.sdk.units import parse_quantity
 from weldcell.sdk.weldpath import WeldPath
 
+from .scans_io import SCANS_SCHEMA, PosedScans, check_mount, load_posed_scans, read_input_cloud  # noqa: F401
+
 JOB = "scan-and-plan"
-SCANS_SCHEMA = "weldcell/posed-scans@1"
 EXPORT_ALIASES = {
     "urscript": "export.urscript",
     "abb-rapid": "export.abb-rapid",
@@ -110,42 +110,6 @@ def resolve_stages(
     return out
 
 
-# ------------------------------------------------------------------------------------------------ clouds
-def read_input_cloud(path: Path, units: str, frame: str) -> tuple[PointCloud, int]:
-    """Read a PLY/PCD cloud in ``units``; returns it in metres and how many invalid points were dropped.
-
-    NaN/inf points (and points at exactly the origin, the invalid pixels of a depth camera) are dropped;
-    an empty cloud, a cloud with no valid point, or one whose size does not fit ``units`` is refused.
-    """
-    import open3d as o3d
-
-    path = Path(path)
-    if units not in UNIT_SCALE:
-        raise DataError(f"unknown units '{units}'", f"use one of {', '.join(UNIT_SCALE)}")
-    if not path.is_file():
-        raise DataError(f"point cloud file not found: {path}", "check the path")
-    if path.suffix.lower() not in (".ply", ".pcd"):
-        raise DataError(f"{path}: unsupported point cloud format '{path.suffix}'", "use a .ply or .pcd file")
-    raw = PointCloud.from_open3d(
-        o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False), frame=frame
-    )
-    if len(raw) == 0:
-        raise DataError(
-            f"{path} has no points (empty or unreadable file)",
-            "check the file; export the scan again as PLY or PCD",
-        )
-    cloud = drop_invalid(raw)
-    if len(cloud) == 0:
-        raise DataError(
-            f"{path}: all {len(raw)} points are NaN, infinite or at the origin",
-            "the scan holds no valid depth; capture it again",
-        )
-    check_units(cloud, units, what=str(path))
-    cloud.points = cloud.points * UNIT_SCALE[units]
-    cloud.meta["source"] = str(path)
-    return cloud, len(raw) - len(cloud)
-
-
 def parse_floats(text: str, n: int, dims: tuple[str, ...], what: str) -> np.ndarray:
     """``"a,b,c"`` with optional units per value (``"0,-60mm,40 mm"``) → SI floats."""
     parts = [p for p in text.split(",")]
@@ -213,8 +177,7 @@ def write_seam_picture(out_dir: Path, cloud: PointCloud, path: WeldPath, title: 
         axes[0].legend(loc="upper right")
     fig.suptitle(title)
     fig.tight_layout()
-    f = out_dir / "seams.png"
-    fig.savefig(f, dpi=110)
+    f = save_figure(fig, out_dir / "seams.png", dpi=110)  # atomic and durable
     plt.close(fig)
     return f
 
@@ -349,7 +312,7 @@ def seam_command(
         f = output.with_name(output.stem + spec.suffix)
         if f == output:
             f = output.with_name(output.stem + "_export" + spec.suffix)
-        f.write_text(spec.export(doc, spec.settings()))
+        write_text(f, spec.export(doc, spec.settings()))
         written.append(f)
     if not no_denoise:
         click.echo(f"denoised        {len(result.cloud)} points ({stages['denoise'][0].name})")
@@ -372,121 +335,12 @@ def seam_command(
             *table,
             f"timings read {t_read:.2f}s, {timing}",
         ]
-        (report_dir / "summary.txt").write_text("\n".join(summary) + "\n")
+        write_text(report_dir / "summary.txt", "\n".join(summary) + "\n")
         written += [pic, report_dir / "summary.txt"]
     click.echo("written         " + ", ".join(str(f) for f in written))
 
 
 # ------------------------------------------------------------------------------------------------ reconstruct
-@dataclass
-class PosedScans:
-    """Scans read from a folder: the views, their names, and the hand-eye stored with them (or None)."""
-
-    scans: list[PosedScan]
-    names: list[str]
-    T_flange_camera: np.ndarray | None
-    layout: str
-    roi: tuple[Any, Any] = (None, None)
-
-
-def _pose(value: Any, name: str, where: Path, scale: float) -> np.ndarray:
-    if value is None:
-        raise DataError(
-            f"{where}: scan {name} has no pose (T_base_flange)",
-            "give every scan the robot's flange pose at capture as a 4x4 matrix 'T_base_flange'",
-        )
-    try:
-        T = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        T = np.zeros(0)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise DataError(
-            f"{where}: the pose of scan {name} is not a finite 4x4 matrix",
-            "write T_base_flange as [[r11, r12, r13, x], ..., [0, 0, 0, 1]]",
-        )
-    T = T.copy()
-    T[:3, 3] *= scale
-    if not is_rigid(T, tol=1e-4):
-        raise DataError(
-            f"{where}: the pose of scan {name} is not a rigid transform",
-            "its rotation part must be orthonormal with determinant +1 and its last row 0 0 0 1",
-        )
-    return T
-
-
-def load_posed_scans(source: Path) -> PosedScans:
-    """Posed scans from a run folder (``state.json``) or a ``scans.json`` (``weldcell/posed-scans@1``).
-
-    ``source`` is the folder or the JSON file itself. Every scan needs its cloud file (camera frame)
-    and its flange pose ``T_base_flange``; a scan without a pose is refused by name.
-    """
-    source = Path(source)
-    if source.is_file():
-        index, folder = source, source.parent
-    elif (source / "scans.json").is_file():
-        index, folder = source / "scans.json", source
-    elif (source / "state.json").is_file():
-        index, folder = source / "state.json", source
-    elif source.is_dir():
-        raise DataError(
-            f"{source} holds neither scans.json nor a run's state.json",
-            f'write a scans.json: {{"schema": "{SCANS_SCHEMA}", "units": "m", "scans": '
-            '[{"cloud": "000.ply", "T_base_flange": [[...4x4...]], "stamp": 0.0}, ...]}',
-        )
-    else:
-        raise DataError(f"scans folder not found: {source}", "check the path")
-    doc = read_json(index)
-    if not isinstance(doc, dict):
-        raise DataError(f"{index}: expected a JSON object", f"see the {SCANS_SCHEMA} layout in the docs")
-    T_fc = None
-    if index.name == "state.json" and "captures" in doc:
-        layout, units, records = "run folder", "m", doc.get("captures") or []
-        he = (doc.get("notes") or {}).get("hand_eye")
-        if he:
-            T_fc = _pose(he.get("T_flange_camera"), "hand-eye", index, 1.0)
-        key = "file"
-        roi = _run_roi(folder)
-    else:
-        if doc.get("schema") != SCANS_SCHEMA:
-            raise DataError(
-                f"{index}: schema is {doc.get('schema')!r}, expected {SCANS_SCHEMA!r}",
-                f'add "schema": "{SCANS_SCHEMA}"',
-            )
-        layout, units, records, key = "scans.json", doc.get("units", "m"), doc.get("scans"), "cloud"
-        roi = (doc.get("roi_min"), doc.get("roi_max"))
-        if units not in UNIT_SCALE:
-            raise DataError(f"{index}: unknown units {units!r}", f"use one of {', '.join(UNIT_SCALE)}")
-        if not isinstance(records, list):
-            raise DataError(f"{index}: 'scans' must be a list", "list one object per scan")
-        if doc.get("T_flange_camera") is not None:
-            T_fc = _pose(doc["T_flange_camera"], "hand-eye", index, UNIT_SCALE[units])
-    if not records:
-        raise DataError(f"{index} lists no scans", "capture at least one view")
-    scale = UNIT_SCALE[units]
-    scans, names = [], []
-    for i, rec in enumerate(records):
-        if not isinstance(rec, dict) or not rec.get(key):
-            raise DataError(f"{index}: scan {i} names no cloud file ('{key}')", f'add "{key}": "NNN.ply"')
-        name = f"{i} ({rec[key]})"
-        T = _pose(rec.get("T_base_flange"), name, index, scale)
-        cloud, _ = read_input_cloud(folder / rec[key], units, "camera")
-        stamp = rec.get("stamp", float(i))
-        scans.append(PosedScan(cloud, T, float(stamp)))
-        names.append(str(rec[key]))
-    if units != "m":
-        roi = tuple(None if r is None else [v * scale for v in r] for r in roi)
-    return PosedScans(scans, names, T_fc, layout, roi)
-
-
-def _run_roi(folder: Path) -> tuple[Any, Any]:
-    """The region of interest the run's job used (from its result.json), or (None, None)."""
-    f = folder / "result.json"
-    if not f.is_file():
-        return None, None
-    job = ((read_json(f).get("provenance") or {}).get("settings") or {}).get("job") or {}
-    return job.get("roi_min"), job.get("roi_max")
-
-
 def hand_eye_option(
     hand_eye: Path | None, mount: str | None, stored: np.ndarray | None
 ) -> tuple[np.ndarray, str]:
@@ -496,7 +350,7 @@ def hand_eye_option(
     if hand_eye is not None:
         from weldcell.plugins.scan_plan.job import read_hand_eye
 
-        return read_hand_eye(hand_eye), str(hand_eye)
+        return check_mount(read_hand_eye(hand_eye), hand_eye), str(hand_eye)
     if mount is not None:
         v = parse_floats(mount, 6, ("length",) * 3 + ("angle",) * 3, "--mount")
         return T_from_rpy(v[3:], v[:3]), "--mount"

@@ -3,6 +3,7 @@ seam extraction → 6-DOF weld path → metrics, robot programs and a report."""
 
 from __future__ import annotations
 
+import re
 import time
 import warnings
 from dataclasses import dataclass
@@ -11,7 +12,7 @@ import numpy as np
 from pydantic import Field
 from rich.markup import escape
 from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
-from weldcell.sdk.artifacts import read_json
+from weldcell.sdk.artifacts import read_json, sha256_file
 from weldcell.sdk.cloud import drop_invalid, read_cloud, write_cloud
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import invert
@@ -101,6 +102,11 @@ def hand_eye(ctx) -> tuple[np.ndarray, str]:
     return T_from_rpy(cam.mount.rpy, cam.mount.xyz), "profile mount (nominal)"
 
 
+def _plain(e: DeviceError) -> str:
+    """A device error's message for the operator: without an embedded API hint ('fix: call recover()')."""
+    return re.split(r"\s+fix:\s", e.message)[0]
+
+
 def _retry(ctx, device, what: str, fn, attempts: int, delay: float = 0.0):
     """Call ``fn``; on a DeviceError recover the device and retry (captures are already saved).
 
@@ -111,7 +117,8 @@ def _retry(ctx, device, what: str, fn, attempts: int, delay: float = 0.0):
     last: DeviceError | None = None
     for k in range(attempts + 1):
         if k > 0:
-            ctx.reporter.info(f"[yellow]{what}: {last.message}; reconnecting ({k}/{attempts})[/yellow]")
+            line = f"{what}: {_plain(last)}; reconnecting ({k}/{attempts})"
+            ctx.reporter.info(f"[yellow]{escape(line)}[/yellow]")
             if delay > 0 and k > 1:
                 time.sleep(delay * 2 ** (k - 2))
             try:
@@ -126,52 +133,182 @@ def _retry(ctx, device, what: str, fn, attempts: int, delay: float = 0.0):
         except DeviceError as e:
             last = e
     raise JobError(
-        f"{what}: {last.message} (after {attempts} reconnection attempt{'s' if attempts != 1 else ''})",
+        f"{what}: {_plain(last)} (after {attempts} reconnection attempt{'s' if attempts != 1 else ''})",
         f"captures so far are saved in {ctx.run_dir}; fix the device and run again with "
         f"`weldcell run {ctx.loaded.path} --resume {ctx.run_dir}`",
     ) from last
 
 
+SCAN = "scan (gesture-guided)"
+EXECUTE = "execute weld path"
+CHECK = "check weld path motions"
+
+
+def _to_json(v):
+    if isinstance(v, np.ndarray):
+        return {"array": v.tolist()}
+    if isinstance(v, tuple):
+        return {"tuple": [_to_json(x) for x in v]}
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def _from_json(v):
+    if isinstance(v, dict) and "array" in v:
+        return np.asarray(v["array"], dtype=float)
+    if isinstance(v, dict) and "tuple" in v:
+        return tuple(_from_json(x) for x in v["tuple"])
+    return v
+
+
+def controller_state(ctl: GestureScanController) -> dict:
+    """The controller's running state (smoothed palm, hold timers, clutch, ...), exactly, as JSON."""
+    return {k: _to_json(v) for k, v in vars(ctl).items() if k.startswith("_")}
+
+
+def restore_controller(ctl: GestureScanController, state: dict) -> None:
+    """Put a :func:`controller_state` snapshot back."""
+    for k, v in state.items():
+        if k.startswith("_") and hasattr(ctl, k):
+            setattr(ctl, k, _from_json(v))
+
+
+def _replays_script(sensor) -> bool:
+    """A gesture sensor that replays a script (the simulated hand) starts it again when reopened; a
+    live tracker simply continues with the operator's hand."""
+    return getattr(sensor, "player", None) is not None
+
+
+def _generator_state(device) -> dict | None:
+    """The random generator state of a simulated device (its noise), so a resumed scan continues it."""
+    rng = getattr(device, "rng", None)
+    return rng.bit_generator.state if isinstance(rng, np.random.Generator) else None
+
+
 def load_captures(ctx) -> list[PosedScan]:
-    """Scans recorded in state.json (after a resume), read back from the run folder."""
-    scans = []
-    for i, rec in enumerate(ctx.state.captures):
-        f = ctx.run_dir / rec["file"]
-        if not f.is_file():
-            raise JobError(
-                f"capture {i} of the resumed run ({rec['file']}) is missing from {ctx.run_dir}",
-                "restore the file, or start a new run without --resume",
+    """Scans recorded in state.json (after a resume), each verified against its recorded size and
+    SHA-256 and read back from the run folder.
+
+    A damaged capture while the scan is still open is taken out (with the ones after it; their files
+    are kept, renamed) and the scan continues from the capture before it. When the scan had finished, a
+    damaged capture stops the run with an error: re-scanning moves the robot, so it needs ``--redo scan``.
+    """
+    st = ctx.state
+    bad = st.first_damaged_capture()
+    if bad is not None:
+        i, problem = bad
+        if st.step_done(SCAN) and not ctx.redoing(SCAN):
+            raise DataError(
+                f"{problem}; the scan had finished, so it is not taken again automatically",
+                f"restore the file, or re-scan from capture {i} on (the {i} before it are kept) with "
+                f"`{ctx.resume_command} --redo scan`",
             )
+        n = len(st.captures) - i
+        ctx.reporter.info(
+            f"[yellow]{escape(problem)}: it is captured again ({n} capture(s) taken out)[/yellow]"
+        )
+        st.discard_captures(i, problem)
+    elif ctx.redoing(SCAN) and st.captures:
+        ctx.reporter.info(f"--redo scan: {len(st.captures)} earlier capture(s) set aside, scanning again")
+        st.discard_captures(0, "--redo scan")
+    scans = []
+    for rec in st.captures:
+        f = ctx.run_dir / rec["file"]
         cloud = read_cloud(f, units="m", frame="camera", check_scale=False)
+        if "points" in rec and len(cloud) != rec["points"]:
+            raise DataError(
+                f"capture {rec['file']} holds {len(cloud)} points, {rec['points']} were recorded",
+                f"restore the file, or re-scan with `{ctx.resume_command} --redo scan`",
+            )
         scans.append(PosedScan(cloud, np.asarray(rec["T_base_flange"], dtype=float), float(rec["stamp"])))
     return scans
 
 
+class _ScanClock:
+    """Scan time: sensor time since the scan began, continued across resumes (stamps restart)."""
+
+    def __init__(self, base: float = 0.0, gap: float = 0.0) -> None:
+        self.base, self.gap, self.first = base, gap, None
+
+    def __call__(self, stamp: float) -> float:
+        if self.first is None:
+            self.first = stamp
+        return self.base + self.gap + (stamp - self.first)
+
+
+def _continue_scan(ctx, ctl, robot, sensor, camera, read) -> _ScanClock:
+    """Put the scan back where its last capture left it: controller state, the simulated hand's script
+    position and noise generators, and the robot at that capture's joints (one gated joint move)."""
+    if not ctx.state.captures:
+        return _ScanClock()
+    last = ctx.state.captures[-1]
+    if "controller" not in last:  # a run folder from before checkpoints: continue from here
+        return _ScanClock(float(last.get("scan_time", 0.0)), 1.0 / ctl.rate_hint)
+    restore_controller(ctl, last["controller"])
+    if _replays_script(sensor):
+        # the hand script replays from its start: skip the frames the scan already used, timing them
+        # as the first attempt did (scan time counts from the script's first frame)
+        clock = _ScanClock()
+        for _ in range(int(last["frames"])):
+            clock(read().stamp)
+    else:  # a live tracker: the operator's hand continues now
+        clock = _ScanClock(float(last["scan_time"]), 1.0 / ctl.rate_hint)
+    replay = last.get("replay") or {}
+    if replay.get("camera_rng") is not None and _generator_state(camera) is not None:
+        camera.rng.bit_generator.state = replay["camera_rng"]
+    q = np.asarray(last.get("q", []), dtype=float)
+    now = robot.state().q
+    if q.shape == now.shape and np.max(np.abs(q - now)) > 1e-6:
+        ctx.reporter.info(f"returning the robot to where capture {len(ctx.state.captures) - 1} was taken")
+        robot.move_joint(q)
+    return clock
+
+
 def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
-    """Algorithm 1 in a loop: move the camera by hand gestures, capture on 'ok', stop on a fist."""
+    """Algorithm 1 in a loop: move the camera by hand gestures, capture on 'ok', stop on a fist.
+
+    Every capture is a checkpoint (file + size + SHA-256, pose, joints, scan time, gesture frames used,
+    controller state): a resumed scan continues after the last one, never capturing a view twice.
+    """
     s: ScanAndPlanSettings = ctx.settings
     robot, camera, sensor = ctx.device("robot"), ctx.device("camera"), ctx.device("gesture")
     scans = load_captures(ctx)
     resumed = len(scans)
+    if ctx.state.step_done(SCAN) and not ctx.redoing(SCAN):
+        ctx.reporter.info(f"scan: done in an earlier attempt ({len(scans)} captures), not repeated")
+        ctx.figures["scan"] = {"captures": len(scans), "resumed_captures": resumed, "refused_targets": 0}
+        return scans
     if scans:
         ctx.reporter.info(f"resuming with {len(scans)} capture(s) already taken")
+
+    def retry(device, what, fn):
+        return _retry(ctx, device, what, fn, s.reconnects, s.reconnect_delay)
+
+    # gesture frames read since the scan began (a scripted sensor's resume re-reads them from 0)
+    frames = int(ctx.state.captures[-1].get("frames", 0)) if scans and not _replays_script(sensor) else 0
+
+    def read():
+        nonlocal frames
+        frame = retry(sensor, "gesture sensor", sensor.read)
+        frames += 1
+        return frame
+
     ctl = GestureScanController(s.gesture)
     refused = 0
-    t0 = None
-    with ctx.step("scan (gesture-guided)", total=s.max_captures) as advance:
+    with ctx.step(SCAN, total=s.max_captures, kind="checkpointed") as advance:
+        clock = _continue_scan(ctx, ctl, robot, sensor, camera, read)
         advance(len(scans), s.max_captures, "captures")
         while len(scans) < s.max_captures:
-            frame = _retry(ctx, sensor, "gesture sensor", sensor.read, s.reconnects, s.reconnect_delay)
-            stamp = frame.stamp
-            t0 = stamp if t0 is None else t0
-            if stamp - t0 > s.max_scan_time or getattr(sensor, "finished", False):
+            frame = read()
+            t = clock(frame.stamp)
+            if t > s.max_scan_time or getattr(sensor, "finished", False):
                 break
-            state = robot.state()
-            T_base_camera = state.T_base_flange @ T_flange_camera
-            cmd = ctl.update(frame, T_base_camera, stamp=stamp)
+            state = retry(robot, "robot", robot.state)
+            cmd = ctl.update(frame, state.T_base_flange @ T_flange_camera, stamp=t)
             if cmd.capture:
-                depth = _retry(ctx, camera, "camera", camera.capture, s.reconnects, s.reconnect_delay)
-                pose = robot.state().T_base_flange
+                depth = retry(camera, "camera", camera.capture)
+                state = retry(robot, "robot", robot.state)
                 cloud = drop_invalid(depth.to_cloud())
                 if len(cloud) < s.min_depth_points:
                     ctx.reporter.info(
@@ -182,28 +319,38 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
                 name = f"scans/{len(scans):03d}.ply"
                 write_cloud(ctx.path(name), cloud)
                 ctx.state.add_capture(
-                    {"file": name, "T_base_flange": pose.tolist(), "stamp": depth.stamp, "points": len(cloud)}
+                    {
+                        "file": name,
+                        "T_base_flange": state.T_base_flange.tolist(),
+                        "q": state.q.tolist(),
+                        "stamp": depth.stamp,
+                        "points": len(cloud),
+                        "scan_time": t,
+                        "frames": frames,
+                        "controller": controller_state(ctl),
+                        "replay": {"camera_rng": _generator_state(camera)},
+                    }
                 )
-                scans.append(PosedScan(cloud, pose, depth.stamp))
+                scans.append(PosedScan(cloud, state.T_base_flange, depth.stamp))
                 advance(len(scans), s.max_captures, f"{len(cloud)} pts")
             if cmd.stop:
                 break
             if cmd.target is not None:
                 T_tcp = cmd.target @ invert(T_flange_camera) @ robot.T_flange_tcp
                 try:
-                    robot.move_linear(T_tcp)
+                    retry(robot, "robot", lambda T=T_tcp: robot.move_linear(T))
                 except SafetyError as e:
                     refused += 1
                     if refused == 1 or refused % 50 == 0:
                         ctx.reporter.info(
                             f"[yellow]gesture target refused by the safety gate: {e.message}[/yellow]"
                         )
+        if len(scans) < s.min_captures:
+            raise JobError(
+                f"the scan ended with {len(scans)} capture(s); at least {s.min_captures} are needed",
+                "make the 'ok' sign with the right hand while the part is in view",
+            )
     ctx.figures["scan"] = {"captures": len(scans), "resumed_captures": resumed, "refused_targets": refused}
-    if len(scans) < s.min_captures:
-        raise JobError(
-            f"the scan ended with {len(scans)} capture(s); at least {s.min_captures} are needed",
-            "make the 'ok' sign with the right hand while the part is in view",
-        )
     return scans
 
 
@@ -269,10 +416,14 @@ def plan_execution(robot, path, speed: float, approach: float) -> list[SeamMotio
             q_high = None
             if gate.model is not None:
                 q_high = gate.solve(high @ invert(T_ft), q, f"approach of {seam.id}")
-                gate.check_joint_speed(robot.motion.joint_speed, robot.motion.joint_accel)
-                for a in np.linspace(0.0, 1.0, 25):  # as Robot.move_joint checks it
-                    T = gate.model.fk((1 - a) * q + a * q_high) @ T_ft
-                    gate.check_point(T[:3, 3], f"joint move to the approach of {seam.id}")
+                gate.check_joint_move(  # exactly what Robot.move_joint checks
+                    q,
+                    q_high,
+                    T_ft,
+                    robot.motion.joint_speed,
+                    robot.motion.joint_accel,
+                    f"joint move to the approach of {seam.id}",
+                )
                 q = q_high
             else:
                 q = gate.check_linear(T_prev, high, T_ft, lin_speed, lin_accel, q, f"approach of {seam.id}")
@@ -293,18 +444,37 @@ def plan_execution(robot, path, speed: float, approach: float) -> list[SeamMotio
 
 def execute(ctx, path, speed: float, approach: float) -> None:
     """Check the whole execution first (:func:`plan_execution`), then per seam: joint move above its
-    start, down, and follow its torch poses (each command again through the safety gate)."""
+    start, down, and follow its torch poses (each command again through the safety gate).
+
+    A ``motion`` step: done in an earlier attempt it is not repeated (nor checked again); interrupted part
+    way it stops the resume (the part may be welded in part) until the operator asks ``--redo execute``.
+    """
     robot = ctx.device("robot")
-    with ctx.step("check weld path motions"):
+    if ctx.skip(EXECUTE):
+        before = ctx.state.steps[EXECUTE].get("weld_path_sha256")
+        if before and before != sha256_file(ctx.run_dir / "weld_path.json"):
+            ctx.reporter.info(
+                "[yellow]the weld path computed now differs from the one executed earlier; the earlier "
+                "execution stands (--redo execute to weld this one)[/yellow]"
+            )
+        return
+    with ctx.step(CHECK):
         plans = plan_execution(robot, path, speed, approach)
-    with ctx.step("execute weld path", total=len(plans)) as advance:
+    with ctx.step(EXECUTE, total=len(plans), kind="motion") as advance:
+        ctx.state.set_step(
+            EXECUTE,
+            weld_path_sha256=sha256_file(ctx.run_dir / "weld_path.json"),
+            progress=f"0 of {len(plans)} seams welded",
+        )
         for i, m in enumerate(plans):
+            ctx.state.set_step(EXECUTE, progress=f"{i} of {len(plans)} seams welded, {m.seam_id} started")
             if m.q_high is not None:
                 robot.move_joint(m.q_high)
             else:
                 robot.move_linear(m.high)
             robot.move_linear(m.above)
             robot.follow_path(m.path, speed=speed)
+            ctx.state.set_step(EXECUTE, progress=f"{i + 1} of {len(plans)} seams welded")
             advance(i + 1)
 
 
@@ -410,30 +580,28 @@ def run(ctx) -> dict:
     ctx.figures["metrics"] = path.metrics
     doc = path.to_json()
     with ctx.step("export programs"):
-        written = []
-        for spec in ctx.resolved["exporters"]:
-            text = spec.export(doc, ctx.resolved["exporter_settings"].get(spec.name) or spec.settings())
-            name = f"programs/weld_path{spec.suffix}"
-            ctx.write_text(name, text)
-            written.append(name)
+        written = ctx.write_programs(doc, ctx.device("robot").program_settings())
     ctx.figures["programs"] = written
     refused: SafetyError | None = None
     if s.execute:
         try:
             execute(ctx, path, s.weld_speed, s.approach_distance)
-            ctx.figures["execute"] = {"status": "done", "dry_run": bool(ctx.profile.cell.dry_run)}
+            ctx.figures["execute"] = {
+                "status": "done",
+                "dry_run": bool(ctx.profile.cell.dry_run),
+                "attempt": ctx.state.steps[EXECUTE].get("attempts", 1),
+            }
         except SafetyError as e:  # reported after the report is written: nothing was sent
             ctx.figures["execute"] = {"status": "refused", "reason": e.message}
             refused = e
     if ctx.profile.output.report:
+        notes = []
+        if he_fit is not None:
+            notes.append(f"hand-eye (found by the reconstruction): {he_fit.describe()}")
+        if refused is not None:
+            notes.append(f"EXECUTION REFUSED by the safety gate: {refused.message}")
         with ctx.step("report"):
-            write_report(ctx, scans, rec, clean, extraction, path, gt)
-            if he_fit is not None:
-                with ctx.path("summary.txt").open("a") as f:
-                    f.write(f"\nhand-eye (found by the reconstruction): {he_fit.describe()}\n")
-            if refused is not None:
-                with ctx.path("summary.txt").open("a") as f:
-                    f.write(f"\nEXECUTION REFUSED by the safety gate: {refused.message}\n")
+            write_report(ctx, scans, rec, clean, extraction, path, gt, notes=notes)
     if refused is not None:
         raise refused
     return {"seams": len(path.seams), "captures": len(scans)}

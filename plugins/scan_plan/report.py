@@ -40,7 +40,9 @@ def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, f
     ax.set_title(f"{view} view (torch x orange, z blue)")
 
 
-def write_report(ctx, scans, rec, clean, extraction, path, gt) -> None:
+def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] | None = None) -> None:
+    """summary.txt (with ``notes`` at its end), report/report.md and its pictures: every file written
+    whole, atomically and durably (never appended in place)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -53,7 +55,7 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt) -> None:
     axes[0].legend(loc="upper right")
     fig.suptitle(f"{ctx.profile.name}: {len(path.seams)} seam(s) on the reconstructed part")
     fig.tight_layout()
-    fig.savefig(ctx.path("report/seams.png"), dpi=110)
+    ctx.save_figure(fig, "report/seams.png", dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6, 4))
@@ -66,7 +68,7 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt) -> None:
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(ctx.path("report/fitness.png"), dpi=110)
+    ctx.save_figure(fig, "report/fitness.png", dpi=110)
     plt.close(fig)
 
     m = path.metrics
@@ -95,6 +97,8 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt) -> None:
     lines.append(f"timings         {timings}")
     lines.append("")
     lines.append("files           weld_path.json, model.ply, model_denoised.ply, programs/, report/report.md")
+    for note in notes or []:
+        lines += ["", note]
     summary = "\n".join(lines) + "\n"
     ctx.write_text("summary.txt", summary)
     md = [

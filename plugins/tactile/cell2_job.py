@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 from weldcell.plugins.handeye.job import CalibrateSettings
+from weldcell.sdk.artifacts import save_figure
 from weldcell.sdk.errors import JobError
 from weldcell.sdk.geometry import pose_error
 from weldcell.sdk.settings import Settings
@@ -200,5 +201,5 @@ def _plot_error_vs_samples(ctx, rows: list[dict[str, float]]) -> None:
         a.grid(alpha=0.3, which="both")
     fig.suptitle("hand-eye error against the true mount vs samples (all-data fit, as Figs. 10-11)")
     fig.tight_layout()
-    fig.savefig(ctx.path("calibration_error_vs_samples.png"), dpi=110)
+    save_figure(fig, ctx.path("calibration_error_vs_samples.png"), dpi=110)
     plt.close(fig)

@@ -25,6 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
+from weldcell.sdk.artifacts import save_figure
 from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import frame_from_axes, invert, transform_points
@@ -225,24 +226,29 @@ def scan_for_seam(
 ) -> Plan:
     """One scan → base frame (with the GIVEN hand-eye) → ROI → denoise → seams → the seam with a wall."""
     robot = ctx.device("robot")
-    if s.park_xyz is not None:
+    P = _recorded_scan(ctx, prefix)
+    if P is None and s.park_xyz is not None:
         from weldcell.sdk.geometry import T_from_rpy
 
-        with ctx.step(f"{prefix}park the robot out of the camera's view"):
+        with ctx.step(f"{prefix}park the robot out of the camera's view", kind="checkpointed"):
             _goto(robot, T_from_rpy(s.park_rpy, s.park_xyz) @ robot.T_flange_tcp)
-    with ctx.step(f"{prefix}scan the part"):
-        frame = camera.capture()
-        cam_pts = frame.to_cloud().points
-        P = transform_points(T_base_camera, cam_pts)
-        keep = np.all((P >= np.asarray(s.roi_min)) & (P <= np.asarray(s.roi_max)), axis=1)
-        P = P[keep]
-        write_cloud(ctx.path("scan_base.ply"), PointCloud(P, frame="base"))
-        if len(P) < s.min_points:
-            raise JobError(
-                f"the scan has only {len(P)} points inside the part's ROI (need {s.min_points})",
-                "check [job.settings.scan] roi_min/roi_max (robot base frame) and that the part is "
-                "in the camera's view",
-            )
+    if P is None:
+        with ctx.step(f"{prefix}scan the part", kind="checkpointed"):
+            frame = camera.capture()
+            cam_pts = frame.to_cloud().points
+            P = transform_points(T_base_camera, cam_pts)
+            keep = np.all((P >= np.asarray(s.roi_min)) & (P <= np.asarray(s.roi_max)), axis=1)
+            P = P[keep]
+            write_cloud(ctx.path("scan_base.ply"), PointCloud(P, frame="base"))
+            if len(P) < s.min_points:
+                raise JobError(
+                    f"the scan has only {len(P)} points inside the part's ROI (need {s.min_points})",
+                    "check [job.settings.scan] roi_min/roi_max (robot base frame) and that the part is "
+                    "in the camera's view",
+                )
+            # a checkpoint: a resumed run reuses this scan instead of parking and scanning again
+            rec = {"kind": "scan", "prefix": prefix, "file": "scan_base.ply", "points": len(P)}
+            ctx.state.add_capture(rec)
     with ctx.step(f"{prefix}seams (denoise + edge intensity)"):
         view = transform_points(T_base_camera, np.zeros((1, 3)))
         clean = ctx.stage("denoise")(PointCloud(P, frame="base", meta={"viewpoints": view}))
@@ -364,12 +370,55 @@ def check_tool_offset(ctx, robot) -> None:
         )
 
 
+def _recorded_scan(ctx, prefix: str) -> np.ndarray | None:
+    """The part scan of an earlier attempt of this run (verified against its size and SHA-256), or None
+    when there is none or it is damaged (then the robot parks and scans again: no contact, no weld)."""
+    from weldcell.sdk.cloud import read_cloud
+
+    for i, rec in enumerate(ctx.state.captures):
+        if rec.get("kind") == "scan" and rec.get("prefix", "") == prefix:
+            problem = ctx.state.check_capture(i)
+            if problem:
+                ctx.reporter.info(f"[yellow]{problem}: the part is scanned again[/yellow]")
+                return None
+            ctx.reporter.info(f"[dim]{prefix}scan of the part: taken in an earlier attempt, reused[/dim]")
+            return read_cloud(ctx.run_dir / rec["file"], units="m", frame="base", check_scale=False).points
+    return None
+
+
+def _track_guard(ctx, s: TrackSettings, prefix: str) -> dict[str, Any] | None:
+    """Resume rules of the contact phase (approach + Algorithm 2 + retract): done before -> its stored
+    figures (nothing moves); started and not finished -> the run stops until ``--redo track``."""
+    approach, tracking = f"{prefix}approach the seam start", f"{prefix}track the seam (Algorithm 2)"
+    stored = ctx.state.data["notes"].get(f"{prefix}tactile figures")
+    if ctx.redoing(tracking) or ctx.redoing(approach):
+        ctx.redo.update({approach, tracking})  # the approach belongs to the tracking it prepares
+        return None
+    if ctx.state.step_done(tracking) and stored is not None:
+        ctx.reporter.info(f"[dim]{tracking}: done in an earlier attempt, not repeated[/dim]")
+        if stored.get("safe_stop") and s.fail_on_safe_stop:
+            raise JobError(
+                f"tactile tracking made a safe stop in an earlier attempt: {stored['safe_stop']}",
+                f"{_fix_for(stored['safe_stop'])}; to track again: `{ctx.resume_command} --redo track`",
+            )
+        return stored
+    if ctx.state.step_done(tracking):  # killed after the tracking, before its results were saved
+        ctx.state.set_step(tracking, status="failed", error="stopped before its results were saved")
+    for name in (tracking, approach):
+        if ctx.state.status(name) is not None:
+            ctx._guard_motion(name)
+    return None
+
+
 def track(ctx, plan_points: np.ndarray, s: TrackSettings, prefix: str = "") -> dict[str, Any]:
     """Approach, capture the rest pose, run Algorithm 2 until it stops, retract; write the artifacts.
 
     Returns the figures; raises :class:`JobError` after writing them when the stop was a safe stop and
     ``fail_on_safe_stop`` is set.
     """
+    stored = _track_guard(ctx, s, prefix)
+    if stored is not None:
+        return stored
     robot, tactile = ctx.device("robot"), ctx.device("tactile")
     S: ServoSettings = ctx.stage_settings("servo")
     check_tool_offset(ctx, robot)
@@ -388,7 +437,7 @@ def track(ctx, plan_points: np.ndarray, s: TrackSettings, prefix: str = "") -> d
         tip_radius=max(S.tip_radius, 1e-6), tag_gain=srm.tag_gain, tag_axial_gain=srm.tag_axial_gain
     )
 
-    with ctx.step(f"{prefix}approach the seam start"):
+    with ctx.step(f"{prefix}approach the seam start", kind="motion"):
         _goto(robot, T_above, s.approach_speed)
         frames = [tactile.capture() for _ in range(srm.rest_frames)]
         est = _estimator(frames[0], srm)
@@ -407,7 +456,7 @@ def track(ctx, plan_points: np.ndarray, s: TrackSettings, prefix: str = "") -> d
     stop_reason, final_state, safe_stop = "", "", ""
     t_first = None
     n_frames = int(max_time * s.rate) + 1
-    with ctx.step(f"{prefix}track the seam (Algorithm 2)", total=n_frames) as advance:
+    with ctx.step(f"{prefix}track the seam (Algorithm 2)", total=n_frames, kind="motion") as advance:
         while True:
             try:
                 img = tactile.capture()
@@ -609,6 +658,8 @@ def _finish(
         "files": files,
     }
     ctx.write_text(f"{prefix}summary.txt", summary_text(figures, "tactile tracking"))
+    ctx.state.data["notes"][f"{prefix}tactile figures"] = figures  # a resume returns these, moving nothing
+    ctx.state.save()
     if safe_stop and s.fail_on_safe_stop:
         ctx.figures.update({"tactile": figures})
         where = (
@@ -681,7 +732,7 @@ def _plots(ctx, rec, plan, refined, seam_est, truth, S: ServoSettings, prefix: s
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    fig.savefig(ctx.path(f"{prefix}fig13_paths.png"), dpi=110)
+    save_figure(fig, ctx.path(f"{prefix}fig13_paths.png"), dpi=110)
     plt.close(fig)
     out["fig13"] = f"{prefix}fig13_paths.png"
 
@@ -700,7 +751,7 @@ def _plots(ctx, rec, plan, refined, seam_est, truth, S: ServoSettings, prefix: s
     axes[1].legend(fontsize=8)
     axes[1].grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(ctx.path(f"{prefix}deformation_over_time.png"), dpi=110)
+    save_figure(fig, ctx.path(f"{prefix}deformation_over_time.png"), dpi=110)
     plt.close(fig)
     out["deformation"] = f"{prefix}deformation_over_time.png"
 
@@ -717,7 +768,7 @@ def _plots(ctx, rec, plan, refined, seam_est, truth, S: ServoSettings, prefix: s
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(ctx.path(f"{prefix}error_along_seam.png"), dpi=110)
+        save_figure(fig, ctx.path(f"{prefix}error_along_seam.png"), dpi=110)
         plt.close(fig)
         out["error_along_seam"] = f"{prefix}error_along_seam.png"
     return out

@@ -195,7 +195,10 @@ rpy = [0, 0, 0]
     assert result["status"] == "failed" and result["error"]["type"] == "SafetyError"
     assert result["figures"]["execute"]["status"] == "refused"
     assert "EXECUTION REFUSED" in (run_dir / "summary.txt").read_text()
-    assert (run_dir / "programs" / "weld_path.script").is_file()  # the plan is kept for inspection
+    assert (run_dir / "weld_path.json").is_file()  # the plan is kept for inspection
+    # ... but no robot program holding a motion the gate refuses is written (checked for this robot)
+    assert not (run_dir / "programs" / "weld_path.script").exists()
+    assert "reach" in result["figures"]["programs_refused"]["export.urscript"]
 
     (robot,) = robots
     path = WeldPath.from_json(run_dir / "weld_path.json")

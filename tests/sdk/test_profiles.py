@@ -367,7 +367,10 @@ def _is_sim(path: Path, loaded) -> bool:
 
 
 @pytest.mark.parametrize("path", PROFILES, ids=[p.name for p in PROFILES])
-def test_every_shipped_profile_validates(path, installed_pm):
+def test_every_shipped_profile_validates(path, installed_pm, monkeypatch):
+    # a hardware template names its secrets as ${env:NAME}; the integrator exports them before a run
+    for name in re.findall(r"\$\{env:([A-Za-z_][A-Za-z0-9_]*)\}", path.read_text()):
+        monkeypatch.setenv(name, "not-a-real-secret")
     loaded = load_profile(path)
     reg = installed_pm.registry
     names = [("job", loaded.profile.job.name)]

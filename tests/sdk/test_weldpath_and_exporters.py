@@ -1,4 +1,7 @@
-"""The weld-path file (``weldcell/weld-path@1``) and the exporters: URScript, ABB RAPID, CSV, JSON."""
+"""The weld-path file (``weldcell/weld-path@1``) and the exporters: URScript, ABB RAPID, CSV, JSON.
+
+The program exporters are checked in depth (grammars, blends, gate replay) in tests/exporters/; here with
+``reduce=False`` every planned pose is visible in the program."""
 
 from __future__ import annotations
 
@@ -10,7 +13,7 @@ import re
 import numpy as np
 import pytest
 import weldcell.plugins.exporters as exporters_plugin
-from weldcell.plugins.exporters import programs
+from weldcell.plugins.exporters import controllers, programs
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_quat, T_from_ur_pose, frame_from_axes, pose_error
 from weldcell.sdk.weldpath import SCHEMA, SeamPath, WeldPath
@@ -44,9 +47,11 @@ def retracted(T: np.ndarray) -> np.ndarray:
 
 
 def expected_program(wp: WeldPath) -> list[np.ndarray]:
+    """Approach, every pose (a closed seam back to its first), retract."""
     out = []
     for s in wp.seams:
-        out += [retracted(s.poses[0]), *s.poses, retracted(s.poses[-1])]
+        poses = [*s.poses, s.poses[0]] if s.closed else list(s.poses)
+        out += [retracted(poses[0]), *poses, retracted(poses[-1])]
     return out
 
 
@@ -124,14 +129,15 @@ def test_a_seam_without_poses_is_kept():
 
 
 # -- exporters -----------------------------------------------------------------------------------
-UR_POSE = re.compile(r"\b(movel|movep)\(p\[([^\]]+)\]")
+UR_POSE = re.compile(r"\b(movej|movel|movep)\(p\[([^\]]+)\]")
+ALL = programs.URScriptSettings(reduce=False)
 
 
 def test_urscript_visits_every_pose_with_approach_and_retract(path):
-    text = programs.to_urscript(path.to_json())
+    text = programs.to_urscript(path.to_json(), ALL)
     moves = UR_POSE.findall(text)
     expected = expected_program(path)
-    assert len(moves) == len(expected) == sum(len(s.poses) + 2 for s in path.seams)
+    assert len(moves) == len(expected) == sum(len(s.poses) + 2 + s.closed for s in path.seams)
     for (_, values), T in zip(moves, expected, strict=True):
         pose = np.array([float(v) for v in values.split(",")])
         assert len(pose) == 6
@@ -141,17 +147,21 @@ def test_urscript_visits_every_pose_with_approach_and_retract(path):
         assert dt < 2e-6 and dr < 1e-5
     kinds = [k for k, _ in moves]
     n0 = len(path.seams[0].poses)
-    assert kinds[: n0 + 2] == ["movel", "movel", *["movep"] * (n0 - 1), "movel"]
+    assert kinds[: n0 + 2] == ["movej", "movel", *["movep"] * (n0 - 1), "movel"]
+    assert kinds[n0 + 2 : n0 + 4] == ["movej", "movel"]  # the next seam is approached by a joint move
     assert "def weldcell_path():" in text and text.rstrip().endswith("weldcell_path()")
     assert "v=0.01, r=0.001" in text  # welding speed and blend along the seam
+    assert "v=0.008, r=0.001" in text  # the first seam's own weld speed
+    on, off = "set_standard_digital_out(0, True)", "set_standard_digital_out(0, False)"
+    assert text.count(on) == 2 == text.count(off)  # arc on and off per seam
     plain = programs.to_urscript(
-        path.to_json(), programs.URScriptSettings(use_movep=False, program_name="weld")
+        path.to_json(), programs.URScriptSettings(use_movep=False, program_name="weld", reduce=False)
     )
     assert "movep" not in plain and "def weld():" in plain
 
 
 def test_urscript_retract_is_along_minus_z_of_the_torch(path):
-    text = programs.to_urscript(path.to_json(), programs.URScriptSettings(retract="80 mm"))
+    text = programs.to_urscript(path.to_json(), programs.URScriptSettings(retract="80 mm", reduce=False))
     first = np.array([float(v) for v in UR_POSE.findall(text)[0][1].split(",")])
     T0 = path.seams[0].poses[0]
     np.testing.assert_allclose(first[:3], T0[:3, 3] - 0.08 * T0[:3, 2], atol=2e-6)
@@ -162,7 +172,7 @@ RAPID_TARGET = re.compile(r"CONST robtarget (\w+) := \[\[([^\]]+)\],\[([^\]]+)\]
 
 
 def test_rapid_robtargets_in_mm_with_wxyz_quaternions(path):
-    text = programs.to_rapid(path.to_json())
+    text = programs.to_rapid(path.to_json(), programs.RapidSettings(reduce=False))
     targets = RAPID_TARGET.findall(text)
     expected = expected_program(path)
     assert len(targets) == len(expected)
@@ -173,11 +183,19 @@ def test_rapid_robtargets_in_mm_with_wxyz_quaternions(path):
         assert q1 >= 0  # q1 is w
         dt, dr = pose_error(T_from_quat([q2, q3, q4, q1], p / 1000.0), T)
         assert dr < 1e-6
-    moves = re.findall(r"MoveL (\w+), (\w+), (\w+), tWeldGun\\WObj:=wobj0;", text)
-    assert [m[0] for m in moves] == [t[0] for t in targets]  # every target is visited, in order
+    moves = re.findall(
+        r"(MoveJ|MoveL|ArcLStart|ArcL|ArcLEnd) (\w+), (\w+), (?:smWeld, wdWeld_\d, )?(\w+), "
+        r"tWeldGun\\WObj:=wobj0;",
+        text,
+    )
+    assert [m[1] for m in moves] == [t[0] for t in targets]  # every target is visited, in order
     n0 = len(path.seams[0].poses)
-    assert moves[0][1:] == ("v100", "fine") and moves[1][1:] == ("v10", "z1")
-    assert moves[n0 + 1][1:] == ("v100", "fine")
+    assert moves[0] == ("MoveJ", "p0_0", "vApproach", "fine")
+    assert moves[1] == ("ArcLStart", "p0_1", "vApproach", "fine")  # arc on at the first weld pose
+    assert moves[2][0] == "ArcL" and moves[2][2] == "vWeld" and moves[2][3].startswith("zW")
+    assert moves[n0][0] == "ArcLEnd" and moves[n0][3] == "fine"  # arc off, stopped
+    assert moves[n0 + 1] == ("MoveL", f"p0_{n0 + 1}", "vApproach", "fine")
+    assert "PERS tooldata tWeldGun :=" in text and "ConfL\\Off;" in text
     assert text.startswith("MODULE WeldcellPath") and text.rstrip().endswith("ENDMODULE")
     assert "PROC main()" in text and "ENDPROC" in text
 
@@ -205,7 +223,8 @@ def test_json_exporter_writes_the_validated_document(path):
 
 
 def test_exporters_refuse_an_invalid_weld_path():
-    for export in (programs.to_urscript, programs.to_rapid, programs.to_csv, programs.to_json):
+    exporters = (programs.to_urscript, programs.to_rapid, controllers.to_krl, controllers.to_fanuc)
+    for export in (*exporters, programs.to_csv, programs.to_json):
         with pytest.raises(DataError, match="schema"):
             export({"schema": "something-else"})
 
@@ -217,6 +236,8 @@ def test_exporters_are_registered_with_suffixes(weldcell_pm):
     assert suffixes == {
         "export.urscript": ".script",
         "export.abb-rapid": ".mod",
+        "export.kuka-krl": ".src",
+        "export.fanuc-tp": ".ls",
         "export.csv": ".csv",
         "export.json": ".json",
     }
