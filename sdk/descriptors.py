@@ -177,17 +177,24 @@ class JobSpec(Descriptor):
 class ExporterSpec(Descriptor):
     """Turns a weld path into a robot program or table: ``export(weld_path: dict, settings) -> str``.
 
-    ``suffix`` is the file ending written (``.script``, ``.mod``, ``.csv``).
+    ``suffix`` is the file ending written (``.script``, ``.mod``, ``.csv``). A language whose programs
+    are several files (KUKA ``.src`` + ``.dat``) may also give ``files(weld_path, settings) ->
+    {file name: text}``; ``export`` then returns the one file that runs alone.
     """
 
     export: Callable[[dict, Any], str] | None = None
     suffix: str = ".txt"
+    files: Callable[[dict, Any], dict[str, str]] | None = None
     category: ClassVar[str] = "exporter"
 
 
 @dataclass(frozen=True)
 class CommandSpec:
-    """A click command added to the ``weldcell`` CLI (``weldcell seam``, ``weldcell calibrate``, ...)."""
+    """A click command added to the ``weldcell`` CLI (``weldcell seam``, ``weldcell calibrate``, ...).
+
+    A ``name`` with a space, ``"map relocalize"``, adds a sub-command to a group that several plugins
+    share (``weldcell map relocalize``); the CLI makes the group from its members.
+    """
 
     name: str
     command: Any

@@ -1,129 +1,235 @@
-"""Turn a ``weldcell/weld-path@1`` document into robot programs.
+"""Turn a ``weldcell/weld-path@1`` document into robot programs: URScript, ABB RAPID, CSV and JSON.
 
 URScript poses are ``p[x, y, z, rx, ry, rz]`` in metres and a rotation vector (the robot base frame);
-RAPID robtargets are millimetres and quaternions ``[q1, q2, q3, q4] = [w, x, y, z]``.
+RAPID robtargets are millimetres and quaternions ``[q1, q2, q3, q4] = [w, x, y, z]``. Both programs
+come from one motion plan (:mod:`.plan`): reduced poses, non-overlapping blends, approach and retract,
+arc on/off, one procedure per seam and a main calling them in the planned order (docs/exporters.md).
 """
 
 from __future__ import annotations
 
 import io
-from datetime import UTC, datetime
+import math
+from dataclasses import dataclass
 
 import numpy as np
 from pydantic import Field
 from weldcell.sdk.artifacts import dumps
 from weldcell.sdk.geometry import T_to_pose7, T_to_ur_pose
 from weldcell.sdk.settings import Settings
-from weldcell.sdk.units import Acceleration, Length, Speed
+from weldcell.sdk.units import AngularAcceleration, AngularSpeed, Duration, Length, Speed
 from weldcell.sdk.weldpath import WeldPath
 
+from .plan import ProgramPlan, ProgramSettings, build_plan, check_plan
 
-class URScriptSettings(Settings):
-    tool_speed: Speed = Field(0.01, gt=0, description="welding travel speed [m/s]")
+
+@dataclass(frozen=True)
+class ExportResult:
+    """A program's text and the plan it was written from (achieved deviation, checks, skipped seams)."""
+
+    text: str
+    plan: ProgramPlan
+
+
+# -- URScript ------------------------------------------------------------------------------------
+class URScriptSettings(ProgramSettings):
+    tool_speed: Speed = Field(0.01, gt=0, description="welding travel speed [m/s] (a seam's weld_speed wins)")
     approach_speed: Speed = Field(0.1, gt=0, description="speed to and from the seam [m/s]")
-    accel: Acceleration = Field(0.5, gt=0, description="TCP acceleration [m/s^2]")
-    blend: Length = Field(0.001, ge=0, description="blend radius between path points [m]")
-    retract: Length = Field(0.05, ge=0, description="approach/retract distance along -z of the torch [m]")
-    program_name: str = Field("weldcell_path", description="URScript function name")
+    joint_speed: AngularSpeed = Field(0.5, gt=0, description="joint speed of the first movej [rad/s]")
+    joint_accel: AngularAcceleration = Field(1.0, gt=0, description="joint acceleration of movej [rad/s^2]")
+    blend: Length = Field(
+        0.001, ge=0, description="blend radius along the seam [m], clipped to 45 % of the shorter segment"
+    )
+    program_name: str = Field("weldcell_path", pattern=r"^[A-Za-z]\w*$", description="URScript function name")
     use_movep: bool = Field(True, description="movep (constant tool speed) along the seam; movel otherwise")
+    arc_output: int | None = Field(
+        0, ge=0, le=7, description="standard digital output that turns the arc on (None: use the calls)"
+    )
+    arc_on_call: str | None = Field(None, description="URCap call that starts the arc, e.g. 'weld_start()'")
+    arc_off_call: str | None = Field(None, description="URCap call that ends the arc, e.g. 'weld_end()'")
+    arc_on_delay: Duration = Field(0.0, ge=0, description="wait after arc on before moving [s]")
 
 
-class RapidSettings(Settings):
-    module_name: str = Field("WeldcellPath", description="RAPID module name")
-    tool: str = Field("tWeldGun", description="tooldata name in the controller")
-    wobj: str = Field("wobj0", description="wobjdata name")
-    speed: str = Field("v10", description="speeddata along the seam")
-    approach_speed: str = Field("v100", description="speeddata to and from the seam")
-    zone: str = Field("z1", description="zonedata between path points")
-    retract: Length = Field(0.05, ge=0, description="approach/retract distance along -z of the torch [m]")
+def _ur_p(T: np.ndarray) -> str:
+    return "p[" + ", ".join(f"{v:.6f}" for v in T_to_ur_pose(T)) + "]"
 
 
+def _ur_arc(s: URScriptSettings, on: bool) -> list[str]:
+    call = s.arc_on_call if on else s.arc_off_call
+    if call:
+        out = [call]
+    elif s.arc_output is not None:
+        out = [f"set_standard_digital_out({s.arc_output}, {'True' if on else 'False'})"]
+    else:
+        return []
+    if on and s.arc_on_delay > 0:
+        out.append(f"sleep({s.arc_on_delay:g})")
+    return out
+
+
+def export_urscript(data: dict, settings: URScriptSettings | None = None) -> ExportResult:
+    """A URScript program: set_tcp, one function per seam (approach, arc on, weld, arc off, retract)."""
+    s = settings or URScriptSettings()
+    plan = build_plan(data, s, s.tool_speed, s.approach_speed, s.blend)
+    check_plan(plan, s)
+    a = f"{s.accel:g}"
+    note = "the controller picks the IK solution closest to the current joints (movej/movel to poses)"
+    lines = [f"# {h}" for h in plan.header(note, "the TCP active in the installation is used")]
+    lines.append(f"def {s.program_name}():")
+    if plan.tcp_given:  # else keep the installation's TCP: a zero TCP would weld with the flange
+        lines.append(f"  set_tcp({_ur_p(plan.T_flange_tcp)})")
+    for seam in plan.seams:
+        lines.append(f"  # seam {seam.id} ({seam.joint}, {seam.length * 1000:.1f} mm)")
+        lines.append(f"  def {seam.routine}():")
+        for m in seam.motions:
+            if m.kind == "joint":
+                lines.append(f"    movej({_ur_p(m.pose)}, a={s.joint_accel:g}, v={s.joint_speed:g})")
+            elif m.process in ("weld", "arc_end") and s.use_movep:
+                lines.append(f"    movep({_ur_p(m.pose)}, a={a}, v={m.speed:g}, r={m.blend:.6g})")
+            else:
+                lines.append(f"    movel({_ur_p(m.pose)}, a={a}, v={m.speed:g}, r={m.blend:.6g})")
+            if m.process == "arc_start":
+                lines += [f"    {c}" for c in _ur_arc(s, True)]
+            elif m.process == "arc_end":
+                lines += [f"    {c}" for c in _ur_arc(s, False)]
+        lines.append("  end")
+    lines += [f"  {seam.routine}()" for seam in plan.seams]
+    lines += ["end", f"{s.program_name}()"]
+    return ExportResult("\n".join(lines) + "\n", plan)
+
+
+def to_urscript(data: dict, settings: URScriptSettings | None = None) -> str:
+    """The URScript program's text (see :func:`export_urscript`)."""
+    return export_urscript(data, settings).text
+
+
+NAME = r"^[A-Za-z]\w{0,31}$"  # a RAPID identifier
+
+
+# -- ABB RAPID -----------------------------------------------------------------------------------
+class RapidSettings(ProgramSettings):
+    module_name: str = Field("WeldcellPath", pattern=NAME, description="RAPID module name")
+    tool: str = Field("tWeldGun", pattern=NAME, description="tooldata declared in the module")
+    tool_mass: float = Field(1.5, gt=0, description="torch mass for the tooldata [kg]")
+    wobj: str = Field("wobj0", pattern=NAME, description="wobjdata (declared unless wobj0)")
+    speed: str = Field("vWeld", pattern=NAME, description="speeddata name along the seam")
+    approach_speed: str = Field("vApproach", pattern=NAME, description="speeddata to/from")
+    weld_speed: Speed = Field(0.01, gt=0, description="welding speed [m/s] (a seam's weld_speed wins)")
+    travel_speed: Speed = Field(0.1, gt=0, description="speed to and from the seam [m/s]")
+    zone: str = Field("z1", pattern=r"^z\d+(\.\d+)?$|^fine$", description="zone; its radius is the blend")
+    blend: Length | None = Field(None, ge=0, description="blend radius along the seam [m] (default: zone's)")
+    seamdata: str = Field("smWeld", pattern=NAME, description="seamdata name")
+    welddata: str = Field("wdWeld", pattern=r"^[A-Za-z]\w{0,23}$", description="welddata name prefix")
+    purge_time: Duration = Field(0.5, ge=0, description="gas purge time in the seamdata [s]")
+    preflow_time: Duration = Field(0.5, ge=0, description="gas preflow time in the seamdata [s]")
+    weld_schedule: int = Field(1, ge=0, description="power-source schedule number in the welddata")
+
+
+def _blend_of(s: RapidSettings) -> float:
+    if s.blend is not None:
+        return s.blend
+    return 0.0 if s.zone == "fine" else float(s.zone[1:]) / 1000.0
+
+
+def _zone_mm(blend: float) -> float:
+    """The zone radius in mm, rounded down to 0.01 mm (never over the non-overlap bound)."""
+    return math.floor(blend * 1e5 + 1e-6) / 100.0
+
+
+def _speeddata(mm_s: float) -> str:
+    return f"[{mm_s:.1f},30,200,15]"
+
+
+def export_rapid(data: dict, settings: RapidSettings | None = None) -> ExportResult:
+    """An ABB RAPID module with declared tool, work object, speed, zone, seam and weld data; one PROC per
+    seam (MoveJ/MoveL approach, ArcLStart/ArcL/ArcLEnd weld, MoveL retract) and a main calling them."""
+    s = settings or RapidSettings()
+    plan = build_plan(data, s, s.weld_speed, s.travel_speed, _blend_of(s))
+    check_plan(plan, s)
+    x, y, z, qx, qy, qz, qw = T_to_pose7(plan.T_flange_tcp)
+    cog_z = 0.5 * z * 1000.0
+    decl = [
+        f"    PERS tooldata {s.tool} := [TRUE,[[{x * 1000:.3f},{y * 1000:.3f},{z * 1000:.3f}],"
+        f"[{qw:.7f},{qx:.7f},{qy:.7f},{qz:.7f}]],[{s.tool_mass:g},[0,0,{cog_z:.1f}],[1,0,0,0],0,0,0]];",
+    ]
+    if s.wobj != "wobj0":
+        frame = "[[0,0,0],[1,0,0,0]]"
+        decl.append(f'    PERS wobjdata {s.wobj} := [FALSE,TRUE,"",{frame},{frame}];')
+    decl.append(f"    CONST speeddata {s.approach_speed} := {_speeddata(s.travel_speed * 1000)};")
+    decl.append(f"    CONST speeddata {s.speed} := {_speeddata(s.weld_speed * 1000)};")
+    zones: dict[float, str] = {}
+    for m in plan.motions:
+        if _zone_mm(m.blend) > 0:
+            zones.setdefault(_zone_mm(m.blend), f"zW{len(zones)}")
+    for r, name in zones.items():
+        o = f"{0.1 * r:.3g}"
+        decl.append(f"    CONST zonedata {name} := [FALSE,{r:g},{r:g},{r:g},{o},{r:g},{o}];")
+    zero = "[0,0,0,0,0,0,0,0,0]"
+    decl.append(
+        f"    PERS seamdata {s.seamdata} := [{s.purge_time:g},{s.preflow_time:g},{zero},0,0,0,0,0,{zero},0,0,"
+        f"{zero},0,0,{zero},0];"
+    )
+    targets, procs = [], []
+    for si, seam in enumerate(plan.seams):
+        wd = f"{s.welddata}_{si}"
+        decl.append(
+            f"    PERS welddata {wd} := [{seam.weld_speed * 1000:.1f},0,"
+            f"[{s.weld_schedule},0,0,0,0,0,0,0,0],{zero}];"
+        )
+        proc = seam.routine
+        body = [f"    ! seam {seam.id} ({seam.joint}, {seam.length * 1000:.1f} mm)", f"    PROC {proc}()"]
+        tool, arc = f"{s.tool}\\WObj:={s.wobj}", f"{s.seamdata}, {wd}"
+        for k, m in enumerate(seam.motions):
+            name = f"p{si}_{k}"
+            px, py, pz, ax, ay, az, aw = T_to_pose7(m.pose)
+            targets.append(
+                f"    CONST robtarget {name} := [[{px * 1000:.3f},{py * 1000:.3f},{pz * 1000:.3f}],"
+                f"[{aw:.7f},{ax:.7f},{ay:.7f},{az:.7f}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];"
+            )
+            zone = zones[_zone_mm(m.blend)] if _zone_mm(m.blend) > 0 else "fine"
+            if m.kind == "joint":
+                body.append(f"        MoveJ {name}, {s.approach_speed}, fine, {tool};")
+            elif m.process == "arc_start":
+                body.append(f"        ArcLStart {name}, {s.approach_speed}, {arc}, fine, {tool};")
+            elif m.process == "weld":
+                body.append(f"        ArcL {name}, {s.speed}, {arc}, {zone}, {tool};")
+            elif m.process == "arc_end":
+                body.append(f"        ArcLEnd {name}, {s.speed}, {arc}, fine, {tool};")
+            else:
+                body.append(f"        MoveL {name}, {s.approach_speed}, fine, {tool};")
+        procs += [*body, "    ENDPROC", ""]
+    out = [
+        f"MODULE {s.module_name}",
+        *(f"    ! {h}" for h in plan.header("confdata not computed; configuration monitoring off")),
+        "    ! ConfL\\Off / ConfJ\\Off: robtargets carry no computed confdata; the robot keeps the",
+        "    ! configuration closest to its current one. Run the program once in manual reduced speed.",
+        *decl,
+        *targets,
+        "",
+        "    PROC main()",
+        "        ConfJ\\Off;",
+        "        ConfL\\Off;",
+        *(f"        {seam.routine};" for seam in plan.seams),
+        "    ENDPROC",
+        "",
+        *procs,
+        "ENDMODULE",
+    ]
+    return ExportResult("\n".join(out) + "\n", plan)
+
+
+def to_rapid(data: dict, settings: RapidSettings | None = None) -> str:
+    """The RAPID module's text (see :func:`export_rapid`)."""
+    return export_rapid(data, settings).text
+
+
+# -- tables --------------------------------------------------------------------------------------
 class CsvSettings(Settings):
     units: str = Field("mm", pattern="^(mm|m)$", description="position units in the table")
 
 
-def _retract(T: np.ndarray, d: float) -> np.ndarray:
-    out = T.copy()
-    out[:3, 3] = T[:3, 3] - d * T[:3, 2]
-    return out
-
-
-def _header(path: WeldPath, comment: str) -> list[str]:
-    n = sum(len(s.poses) for s in path.seams)
-    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    return [
-        f"{comment} generated by weldcell on {stamp}: {len(path.seams)} seam(s), {n} poses, "
-        f"frame '{path.frame}'"
-    ]
-
-
-def to_urscript(data: dict, settings: URScriptSettings | None = None) -> str:
-    """A URScript program visiting every seam: approach, weld along the poses, retract."""
-    s = settings or URScriptSettings()
-    path = WeldPath.from_json(data)
-
-    def p(T: np.ndarray) -> str:
-        return "p[" + ", ".join(f"{v:.6f}" for v in T_to_ur_pose(T)) + "]"
-
-    lines = [f"# {line}" for line in _header(path, "")]
-    lines.append(f"def {s.program_name}():")
-    for seam in path.seams:
-        if len(seam.poses) == 0:
-            continue
-        lines.append(f"  # seam {seam.id} ({seam.joint}, {seam.length * 1000:.1f} mm)")
-        lines.append(f"  movel({p(_retract(seam.poses[0], s.retract))}, a={s.accel}, v={s.approach_speed})")
-        lines.append(f"  movel({p(seam.poses[0])}, a={s.accel}, v={s.approach_speed})")
-        move = "movep" if s.use_movep else "movel"
-        for T in seam.poses[1:]:
-            lines.append(f"  {move}({p(T)}, a={s.accel}, v={s.tool_speed}, r={s.blend})")
-        lines.append(f"  movel({p(_retract(seam.poses[-1], s.retract))}, a={s.accel}, v={s.approach_speed})")
-    lines.append("end")
-    lines.append(f"{s.program_name}()")
-    return "\n".join(lines) + "\n"
-
-
-def to_rapid(data: dict, settings: RapidSettings | None = None) -> str:
-    """An ABB RAPID module: one robtarget per pose and a MoveL sequence per seam."""
-    s = settings or RapidSettings()
-    path = WeldPath.from_json(data)
-    decl, body = [], []
-    for si, seam in enumerate(path.seams):
-        names = []
-        poses = (
-            [_retract(seam.poses[0], s.retract), *seam.poses, _retract(seam.poses[-1], s.retract)]
-            if len(seam.poses)
-            else []
-        )
-        for k, T in enumerate(poses):
-            x, y, z, qx, qy, qz, qw = T_to_pose7(T)
-            name = f"p{si}_{k}"
-            names.append(name)
-            decl.append(
-                f"    CONST robtarget {name} := [[{x * 1000:.3f},{y * 1000:.3f},{z * 1000:.3f}],"
-                f"[{qw:.7f},{qx:.7f},{qy:.7f},{qz:.7f}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];"
-            )
-        if not names:
-            continue
-        body.append(f"        ! seam {seam.id} ({seam.joint}, {seam.length * 1000:.1f} mm)")
-        body.append(f"        MoveL {names[0]}, {s.approach_speed}, fine, {s.tool}\\WObj:={s.wobj};")
-        for name in names[1:-1]:
-            body.append(f"        MoveL {name}, {s.speed}, {s.zone}, {s.tool}\\WObj:={s.wobj};")
-        body.append(f"        MoveL {names[-1]}, {s.approach_speed}, fine, {s.tool}\\WObj:={s.wobj};")
-    out = [
-        f"MODULE {s.module_name}",
-        *(f"    ! {h}" for h in _header(path, "")),
-        *decl,
-        "",
-        "    PROC main()",
-        *body,
-        "    ENDPROC",
-        "ENDMODULE",
-    ]
-    return "\n".join(out) + "\n"
-
-
 def to_csv(data: dict, settings: CsvSettings | None = None) -> str:
-    """``seam,index,x,y,z,qx,qy,qz,qw`` with positions in the chosen units."""
+    """``seam,index,x,y,z,qx,qy,qz,qw`` with positions in the chosen units (every planned pose)."""
     s = settings or CsvSettings()
     path = WeldPath.from_json(data)
     scale = 1000.0 if s.units == "mm" else 1.0
@@ -142,3 +248,17 @@ def to_csv(data: dict, settings: CsvSettings | None = None) -> str:
 def to_json(data: dict, settings=None) -> str:
     """The validated weld-path document as JSON text."""
     return dumps(WeldPath.from_json(data).to_json()) + "\n"
+
+
+__all__ = [
+    "CsvSettings",
+    "ExportResult",
+    "RapidSettings",
+    "URScriptSettings",
+    "export_rapid",
+    "export_urscript",
+    "to_csv",
+    "to_json",
+    "to_rapid",
+    "to_urscript",
+]
