@@ -19,6 +19,7 @@ from weldcell.hal.readings import (
     Intrinsics,
     Projection,
 )
+from weldcell.hal.stream import StreamingDevice, StreamStatus  # noqa: F401 - re-exported
 
 
 class DepthCamera(Device):
@@ -60,14 +61,15 @@ class GestureSensor(Device):
         raise NotImplementedError
 
 
-class DisplacementSensor(Device):
-    """A 1-D laser displacement sensor."""
+class DisplacementSensor(StreamingDevice):
+    """A 1-D laser displacement sensor (streams: see :mod:`weldcell.hal.stream`)."""
 
     kind = "displacement_sensor"
 
     def read(self, timeout: float = 0.5) -> Displacement:
         """One reading (``distance`` None when the target is out of range)."""
         self.require_active()
+        self._refuse_while_streaming()
         r = self._read(timeout)
         self.mark_reading()
         return r
@@ -120,13 +122,15 @@ class TactileCamera(Device):
         raise NotImplementedError
 
 
-class Imu(Device):
-    """An inertial measurement unit (optionally with a magnetometer)."""
+class Imu(StreamingDevice):
+    """An inertial measurement unit (optionally with a magnetometer); streams: :mod:`weldcell.hal.stream`."""
 
     kind = "imu"
 
     def read(self, timeout: float = 0.5) -> ImuReading:
+        """One reading; :class:`DeviceError` when none arrives within ``timeout`` or while streaming."""
         self.require_active()
+        self._refuse_while_streaming()
         r = self._read(timeout)
         self.mark_reading()
         return r
@@ -135,13 +139,16 @@ class Imu(Device):
         raise NotImplementedError
 
 
-class Gnss(Device):
-    """A GNSS receiver."""
+class Gnss(StreamingDevice):
+    """A GNSS receiver (streams: :mod:`weldcell.hal.stream`). No fix is a reading with fix_type "none"."""
 
     kind = "gnss"
+    stream_read_timeout = 1.5
 
     def read(self, timeout: float = 1.5) -> GnssFix:
+        """The next solution; :class:`DeviceError` when none arrives within ``timeout`` or while streaming."""
         self.require_active()
+        self._refuse_while_streaming()
         r = self._read(timeout)
         self.mark_reading()
         return r

@@ -111,6 +111,10 @@ class Displacement:
     stamp: float
     distance: float | None
     frame: str = "laser"
+    device_stamp: float | None = None
+    """The sensor's own time stamp (s, its clock) where the protocol sends one; None otherwise."""
+    error: str | None = None
+    """Why ``distance`` is None, as the sensor reports it ("too far from the sensor", ...)."""
 
     @property
     def valid(self) -> bool:
@@ -137,6 +141,8 @@ class ImuReading:
     mag: np.ndarray | None = None
     orientation: np.ndarray | None = None
     frame: str = "imu"
+    device_stamp: float | None = None
+    """The IMU's own time stamp (s, its clock) where the protocol sends one; None otherwise."""
 
 
 @dataclass(frozen=True)
@@ -150,7 +156,30 @@ class GnssFix:
     enu: np.ndarray | None = None
     covariance: np.ndarray | None = None
     fix_type: str = "3d"
+    """One of ``FIX_TYPES``: "none" (no position: latitude/longitude/altitude are NaN), "dead-reckoning",
+    "2d", "3d", "gnss+dr", "time-only", "dgnss", "rtk-float", "rtk-fixed"."""
     frame: str = "enu"
+    device_stamp: float | None = None
+    """The receiver's UTC time of the solution (s since the Unix epoch) where it sends one."""
+    h_acc: float | None = None
+    """Horizontal accuracy estimate (1 sigma, m) as the receiver reports it."""
+    v_acc: float | None = None
+    """Vertical accuracy estimate (1 sigma, m)."""
+    num_sv: int | None = None
+    """Satellites used in the solution."""
+    velocity_enu: np.ndarray | None = None
+    """Velocity east/north/up (m/s) where the receiver sends it."""
+
+    @property
+    def valid(self) -> bool:
+        """True when the fix carries a position (not "none" / "time-only", finite coordinates)."""
+        return self.fix_type not in ("none", "time-only") and bool(
+            np.isfinite([self.latitude, self.longitude]).all()
+        )
+
+
+FIX_TYPES = ("none", "dead-reckoning", "2d", "3d", "gnss+dr", "time-only", "dgnss", "rtk-float", "rtk-fixed")
+"""The values of :attr:`GnssFix.fix_type`."""
 
 
 @dataclass(frozen=True)
