@@ -10,6 +10,7 @@ to inherit, only the call to answer.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -73,6 +74,39 @@ class TactileServoStage(Protocol):
     def __call__(self, planned_points: np.ndarray, gate: Callable[..., None] | None = None) -> Any: ...
 
 
+class EdgesStage(Protocol):
+    """kind ``edges``: edge points of a laser scan. ``(scan, template) -> EdgePoints`` with ``xy`` (M, 2) in
+    the base frame (see :mod:`weldcell.plugins.localize.edges`)."""
+
+    def __call__(self, scan: Any, template: Any) -> Any: ...
+
+
+class LocalizeStage(Protocol):
+    """kind ``localize``: fit a CAD template to edge points. ``(template, edges) -> Localization`` with
+    ``status``, ``M`` (4x4, P_found = M @ P_planned) and ``to_json()`` (``weldcell/localization@1``)."""
+
+    def __call__(self, template: Any, edges: Any) -> Any: ...
+
+
+@dataclass(frozen=True)
+class Detection2D:
+    """One object found in an image: box ``xyxy`` (pixels: left, top, right, bottom), class name and
+    index, and a score in [0, 1]."""
+
+    xyxy: tuple[float, float, float, float]
+    label: str
+    class_id: int
+    score: float
+
+
+class DetectorStage(Protocol):
+    """kind ``detector``: objects (weld regions) in one colour image. ``(rgb (H, W, 3) uint8, meta)
+    -> list[Detection2D]`` (empty when nothing is found); ``meta`` may carry what a simulated detector
+    needs (the frame's ground-truth pose), real detectors ignore it."""
+
+    def __call__(self, rgb: np.ndarray, meta: dict | None = None) -> list[Detection2D]: ...
+
+
 STAGE_KINDS: dict[str, type] = {
     "reconstruct": ReconstructStage,
     "denoise": DenoiseStage,
@@ -80,5 +114,8 @@ STAGE_KINDS: dict[str, type] = {
     "path": PathStage,
     "handeye": HandEyeStage,
     "tactile-servo": TactileServoStage,
+    "edges": EdgesStage,
+    "localize": LocalizeStage,
+    "detector": DetectorStage,
 }
 """Stage kind -> the protocol its stage objects answer."""

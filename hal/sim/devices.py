@@ -12,10 +12,12 @@ import numpy as np
 from weldcell.hal.interfaces import DepthCamera, DisplacementSensor, GestureSensor, Gnss, Imu, LaserProjector
 from weldcell.hal.readings import DepthFrame, Displacement, GnssFix, HandsFrame, ImuReading, Intrinsics  # noqa: F401
 from weldcell.hal.robot import Robot, RobotMotionSettings
-from weldcell.hal.safety import SafetyGate
+from weldcell.hal.safety import SafetyGate, servo_flange_pose
 from weldcell.hal.sim.flange import FlangeGeometry, flange_mesh, posed_mesh
 from weldcell.hal.sim.hands import HandScript
 from weldcell.hal.sim.kinematics import RobotModel
+from weldcell.hal.sim.laser_model import PRESETS, CouplingError, LaserModel, LaserSpec
+from weldcell.hal.sim.trajectory import TimedTrajectory
 from weldcell.hal.sim.world import SimWorld
 from weldcell.sdk.errors import DeviceError
 from weldcell.sdk.geometry import invert, transform_points
@@ -45,6 +47,8 @@ class SimRobot(Robot):
         self.T_world_base = np.eye(4) if T_world_base is None else np.asarray(T_world_base, dtype=float)
         self.q = np.array(model.home if q_start is None else q_start, dtype=float)
         self.trajectory: list[tuple[float, np.ndarray]] = []
+        # timed flange segments: where the flange was at any past simulated time (streaming sensors)
+        self.timed = TimedTrajectory(self.model.fk, lambda: self.model.fk(self.q + self.q_error))
         self.connected = True
         world.add_frame(f"{name}.base", lambda: self.T_world_base)
         world.add_frame(f"{name}.flange", lambda: self.T_world_base @ self.model.fk(self.q + self.q_error))
@@ -75,13 +79,18 @@ class SimRobot(Robot):
         T0 = self.model.fk(self.q)
         # the safety gate has already checked the whole line for reach, limits and continuity
         q = self.model.ik(T_base_flange, self.q)
-        self.world.clock.advance(self.model.linear_move_time(T0, T_base_flange, speed, accel))
+        dt = self.model.linear_move_time(T0, T_base_flange, speed, accel)
+        self.timed.add_linear(self.world.clock.t, dt, T0, self.model.fk(q), speed, accel)
+        self.world.clock.advance(dt)
         self.q = np.asarray(q, dtype=float)
         self._record()
 
     def _move_joint(self, q: np.ndarray, speed: float, accel: float) -> None:
         self._check_link()
-        self.world.clock.advance(self.model.joint_move_time(self.q, q, speed_scale=min(1.0, speed)))
+        dt = self.model.joint_move_time(self.q, q, speed_scale=min(1.0, speed))
+        q_true = np.asarray(q, dtype=float) + self.q_error
+        self.timed.add_joint(self.world.clock.t, dt, self.q + self.q_error, q_true)
+        self.world.clock.advance(dt)
         self.q = np.asarray(q, dtype=float)
         self._record()
 
@@ -90,14 +99,19 @@ class SimRobot(Robot):
             self._move_linear(T, speed, accel)
 
     def _speed_linear(self, twist: np.ndarray, accel: float, duration: float) -> None:
-        """Integrate the flange twist for ``duration`` with the Jacobian (resolved-rate control)."""
+        """Hold the flange twist for ``duration``: the flange origin moves on a line at ``v`` while the
+        orientation turns at ``w`` (what a ``speedl``-style controller does, and what the safety gate
+        checked, :func:`~weldcell.hal.safety.servo_flange_pose`). Resolved-rate steps every 2 ms
+        (``dq = J^+ twist dt``), each corrected onto that exact motion, so the joints stay continuous."""
         self._check_link()
+        twist = np.asarray(twist, dtype=float)
+        T0 = self.model.fk(self.q)
         steps = max(1, int(np.ceil(duration / 0.002)))
         dt = duration / steps
-        for _ in range(steps):
+        for k in range(1, steps + 1):
             J = self.model.jacobian(self.q)
-            dq = np.linalg.lstsq(J, twist, rcond=1e-6)[0]
-            self.q = self.q + dq * dt
+            q = self.q + np.linalg.lstsq(J, twist, rcond=1e-6)[0] * dt
+            self.q = self.model._polish(q, servo_flange_pose(T0, twist, k * dt), iters=3)  # noqa: SLF001
         self.world.clock.advance(duration)
         self._record()
 
@@ -119,9 +133,11 @@ class SimDepthCamera(DepthCamera):
         decimation: int = 1,
         seed: int = 0,
         frame_time: float = 1 / 30,
+        color: bool = False,
     ) -> None:
         super().__init__(name, frame=name)
         self.world = world
+        self.color = color
         self.preset = preset
         self.parent = parent
         self.T_parent_camera = np.asarray(T_parent_camera, dtype=float)
@@ -136,7 +152,12 @@ class SimDepthCamera(DepthCamera):
     def on_configure(self) -> None:
         from weldcell.hal.sim.camera_model import RaycastCamera
 
-        self.camera = RaycastCamera(self.preset, self.world.meshes(), decimation=self.decimation)
+        if self.color:  # colour + registered depth (procedurally textured surfaces, see hal.sim.rgbd)
+            from weldcell.hal.sim.rgbd import RgbdCamera
+
+            self.camera = RgbdCamera(self.preset, self.world.meshes(), decimation=self.decimation)
+        else:
+            self.camera = RaycastCamera(self.preset, self.world.meshes(), decimation=self.decimation)
         self._attached = {}
 
     def _pose_attached(self) -> None:
@@ -169,6 +190,23 @@ class SimDepthCamera(DepthCamera):
         if not self.delivering:
             raise self.fault(f"no frame within {timeout:.1f} s")
         self._pose_attached()
+        if self.color:
+            t_capture, T_capture = self.world.clock.t, self.T_world_camera
+            img, rgb = self.camera.render_rgbd(T_capture, rng=self.rng, noise=self.noise)
+            self.world.clock.advance(self.frame_time)
+            site = getattr(self.world, "site", None)
+            return DepthFrame(
+                stamp=(site.epoch + t_capture) if site is not None else time.time(),
+                depth=img.depth,
+                intrinsics=self._intrinsics(),
+                frame=self.name,
+                color=rgb,
+                meta={
+                    "sim_time": self.world.clock.t,
+                    "capture_sim_time": t_capture,
+                    "T_world_camera": T_capture,
+                },
+            )
         img = self.camera.render(self.T_world_camera, rng=self.rng, noise=self.noise)
         self.world.clock.advance(self.frame_time)
         return DepthFrame(
@@ -227,7 +265,16 @@ class SimGestureSensor(GestureSensor):
 
 
 class SimDisplacementSensor(DisplacementSensor):
-    """A 1-D laser displacement sensor ray-cast against the world (range and noise from settings)."""
+    """A 1-D laser triangulation sensor (optoNCDT 1402 class, :mod:`weldcell.hal.sim.laser_model`).
+
+    ``read()`` gives one reading now. The stream (:mod:`weldcell.hal.stream`) samples on a grid of the
+    sensor's ``rate`` along the carrying robot's timed trajectory (:mod:`weldcell.hal.sim.trajectory`),
+    stamped on the simulated clock ``latency`` seconds late (the sensor's output delay, which
+    acquisition must estimate). When mounted on a robot flange the sensor's true pose carries the
+    robot-sensor coupling error.
+    """
+
+    stream_rate_hz = 200.0  # how often the reader thread looks at the simulated clock (wall time)
 
     def __init__(
         self,
@@ -235,53 +282,207 @@ class SimDisplacementSensor(DisplacementSensor):
         T_parent_sensor: np.ndarray,
         parent: str = "world",
         name: str = "laser",
-        min_range: float = 0.03,
-        max_range: float = 0.3,
-        noise: float = 2e-6,
+        spec: LaserSpec | None = None,
         seed: int = 0,
+        latency: float = 0.0,
+        stop_after: float | None = None,
     ) -> None:
         super().__init__(name, frame=name)
         self.world = world
         self.T_parent_sensor = np.asarray(T_parent_sensor, dtype=float)
         self.parent = parent
-        self.min_range, self.max_range, self.noise = min_range, max_range, noise
-        self.rng = np.random.default_rng(seed)
-        self.scene = None
+        self.spec = spec or PRESETS["ild1402-200"]
+        self.min_range, self.max_range = self.spec.min_range, self.spec.max_range
+        self.seed = seed
+        self.latency = float(latency)
+        self.stop_after = stop_after
+        self.model: LaserModel | None = None
+        self._scene_key: tuple = ()
+        robot = parent.split(".")[0] if parent.endswith(".flange") else None
+        self.robot_role = robot
+        self.coupling = CouplingError(self.spec.coupling if robot else 0.0, seed + 101)
+        self._next_k: int | None = None
+        self.connected = True
 
     def on_configure(self) -> None:
-        import open3d as o3d
+        self._scene()
 
-        self.scene = o3d.t.geometry.RaycastingScene()
-        for m in self.world.meshes():
-            self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(m))
+    def on_recover(self) -> None:
+        self.connected = True
+        self.stop_after = None
+
+    def _scene(self) -> LaserModel:
+        """The ray-casting scene, rebuilt when the world's workpieces change (a part was placed)."""
+        key = tuple(id(w) for w in self.world.workpieces)
+        if self.model is None or key != self._scene_key:
+            self.model = LaserModel(self.spec, self.world.meshes(), seed=self.seed)
+            self._scene_key = key
+        return self.model
+
+    def poses_at(self, t: np.ndarray) -> np.ndarray:
+        """True sensor poses ``T_world_sensor`` (N, 4, 4) at simulated times ``t`` (coupling included)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        robot = self.world.robots.get(self.robot_role) if self.robot_role else None
+        if robot is not None:
+            T = robot.T_world_base @ robot.timed.poses(t) @ self.T_parent_sensor
+        else:
+            T = np.tile(self.world.T_world(self.parent) @ self.T_parent_sensor, (len(t), 1, 1))
+        T[:, :3, 3] += self.coupling(t)
+        return T
 
     def _read(self, timeout: float) -> Displacement:
-        import open3d as o3d
+        if self.stop_after is not None and self.world.clock.t > self.stop_after:
+            self.connected = False
+        if not self.connected:
+            raise self.fault("simulated sensor stopped answering (cable pulled?)")
+        t = self.world.clock.t
+        d = float(self._scene().measure(self.poses_at(np.array([t])))[0])
+        return Displacement(t + self.latency, d if np.isfinite(d) else None, self.name)
 
-        T = self.world.T_world(self.parent) @ self.T_parent_sensor
-        ray = np.concatenate([T[:3, 3], T[:3, 2]]).astype(np.float32)[None]
-        t_hit = float(self.scene.cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0])
-        if not np.isfinite(t_hit) or not (self.min_range <= t_hit <= self.max_range):
-            return Displacement(time.time(), None, self.name)
-        return Displacement(time.time(), t_hit + float(self.rng.normal(0.0, self.noise)), self.name)
+    # -- streaming (the buffered reader of weldcell.hal.stream calls _read_burst) --------------------
+    def start_stream(self, capacity: int = 65536) -> None:
+        """Start sampling now (simulated clock), then the buffered reader."""
+        self.require_active()
+        if not self.streaming:
+            self._next_k = int(np.ceil(self.world.clock.t * self.spec.rate - 1e-9))
+        super().start_stream(capacity)
+
+    def _read_burst(self, timeout: float) -> list[Displacement]:
+        """Every sample on the ``rate`` grid since the last call, up to the simulated clock now.
+
+        A sensor carried by a robot samples along the robot's timed trajectory and waits for simulated
+        time to pass (the robot's motions); a fixed sensor lets simulated time run at its own rate.
+        """
+        if not self.connected:
+            raise self.fault("simulated sensor stopped answering (cable pulled?)")
+        rate = self.spec.rate
+        if self._next_k is None:
+            self._next_k = int(np.ceil(self.world.clock.t * rate - 1e-9))
+        end = self.world.clock.t
+        if self.robot_role is None and end < (self._next_k + 1) / rate:
+            end = self.world.clock.advance((self._next_k + 1) / rate - end)
+        if self.stop_after is not None and end > self.stop_after:
+            end = self.stop_after
+            self.connected = False  # what was measured until the cable was pulled is still delivered
+        k = np.arange(self._next_k, int(np.floor(end * rate + 1e-9)) + 1)
+        if len(k) == 0:
+            return []
+        self._next_k = int(k[-1]) + 1
+        t = k / rate
+        d = self._scene().measure(self.poses_at(t), index=k)
+        return [
+            Displacement(float(a), float(b) if np.isfinite(b) else None, self.name)
+            for a, b in zip(t + self.latency, d, strict=True)
+        ]
+
+    def stop_stream(self) -> list:
+        out = super().stop_stream()
+        self._next_k = None
+        return out
 
 
 class SimProjector(LaserProjector):
-    """A projector that records what it was asked to draw (the picture is rendered in reports)."""
+    """A video laser projector (ShowWX+ class) as a pinhole "inverse camera" on a world frame.
 
-    def __init__(self, name: str = "projector") -> None:
+    ``project(segments)`` renders the world segments into the projector's image with the model the
+    cell *believes* (``calibration``: intrinsics K and the mount, as calibrated; default the true ones)
+    and then ray-casts the lit pixels with the *true* intrinsics and mount onto the scene: ``lit`` holds
+    where the light really lands (what the worker sees). ``project_pixels`` lights given pixels (a dot
+    pattern for the calibration) and returns where they land. ``drawn`` keeps what was asked.
+    """
+
+    def __init__(
+        self,
+        world: SimWorld | None = None,
+        T_parent_projector: np.ndarray | None = None,
+        parent: str = "world",
+        name: str = "projector",
+        intrinsics: Intrinsics | None = None,
+        step: float = 0.002,
+    ) -> None:
         super().__init__(name, frame="world")
+        self.world = world
+        self.T_parent_projector = np.eye(4) if T_parent_projector is None else np.asarray(T_parent_projector)
+        self.parent = parent
+        self.intrinsics = intrinsics or Intrinsics(848, 480, 1000.0, 1000.0, 424.0, 240.0)
+        self.calibration: tuple[np.ndarray, np.ndarray] | None = None  # (K, T_parent_projector) believed
+        self.step = step
         self.drawn: list[tuple[str, np.ndarray]] = []
+        self.lit: np.ndarray = np.zeros((0, 3))
+        self.image_points: np.ndarray = np.zeros((0, 2))
+        self._scene = None
+
+    @property
+    def T_world_projector(self) -> np.ndarray:
+        base = self.world.T_world(self.parent) if self.world is not None else np.eye(4)
+        return base @ self.T_parent_projector
+
+    def _believed(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.calibration is not None:
+            K, T_pp = self.calibration
+        else:
+            K, T_pp = self.intrinsics.K, self.T_parent_projector
+        base = self.world.T_world(self.parent) if self.world is not None else np.eye(4)
+        return np.asarray(K), base @ np.asarray(T_pp)
+
+    def render(self, segments: np.ndarray) -> np.ndarray:
+        """Pixels (M, 2) the believed model lights for world segments (N, 2, 3), sampled every ``step`` m;
+        points behind the projector or outside the image are dropped."""
+        K, T_wp = self._believed()
+        pts = []
+        for a, b in np.asarray(segments, dtype=float):
+            n = max(2, int(np.ceil(np.linalg.norm(b - a) / self.step)) + 1)
+            pts.append(a + np.linspace(0, 1, n)[:, None] * (b - a))
+        P = transform_points(invert(T_wp), np.vstack(pts)) if pts else np.zeros((0, 3))
+        P = P[P[:, 2] > 1e-6]
+        uv = (P[:, :2] / P[:, 2:3]) @ K[:2, :2].T + K[:2, 2]
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < self.intrinsics.width) & (uv[:, 1] >= 0)
+        return uv[inside & (uv[:, 1] < self.intrinsics.height)]
+
+    def project_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Light pixels ``uv`` (M, 2): where each lands in the world (M, 3), NaN where it hits nothing."""
+        import open3d as o3d
+
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        K = self.intrinsics.K
+        d = np.column_stack([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones(len(uv))])
+        T = self.T_world_projector
+        dirs = d @ T[:3, :3].T
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        key = tuple(id(w) for w in self.world.workpieces)
+        if self._scene is None or self._scene[0] != key:  # rebuilt when a part was placed
+            scene = o3d.t.geometry.RaycastingScene()
+            for m in self.world.meshes():
+                scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(m))
+            self._scene = (key, scene)
+        scene = self._scene[1]
+        rays = np.column_stack([np.tile(T[:3, 3], (len(uv), 1)), dirs]).astype(np.float32)
+        t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(float)
+        return np.where(np.isfinite(t)[:, None], T[:3, 3] + t[:, None] * dirs, np.nan)
 
     def _project(self, segments: np.ndarray, label: str) -> None:
         self.drawn = [(label, segments.copy())]
+        if self.world is not None:
+            self.image_points = self.render(segments)
+            self.lit = self.project_pixels(self.image_points) if len(self.image_points) else np.zeros((0, 3))
 
     def _clear(self) -> None:
         self.drawn = []
+        self.lit = np.zeros((0, 3))
+        self.image_points = np.zeros((0, 2))
 
 
 class SimImu(Imu):
-    """An IMU rigidly attached to a world frame: gravity, rotation rate from frame differences, noise."""
+    """A 9-axis IMU on a frame of the simulated world with its real model's errors (:mod:`.inertial`):
+    white noise, bias random walk and turn-on bias of gyro and accelerometer, saturation, and a
+    magnetometer with hard/soft iron and disturbance near steel.
+
+    Mounted on the site's mobile base (frame ``base``) it measures the base's true motion along its
+    route; on any other frame it measures a frame at rest. ``read()`` returns the next sample (and
+    advances the simulated clock to it); a stream (``start_stream``) delivers every sample up to the
+    simulated clock, stamped ``site epoch + simulated time`` (``device_stamp``: simulated time).
+    ``stop_after`` (seconds of simulated time) makes the IMU fall silent (a pulled cable).
+    """
 
     def __init__(
         self,
@@ -289,41 +490,89 @@ class SimImu(Imu):
         parent: str = "world",
         T_parent_imu: np.ndarray | None = None,
         name: str = "imu",
-        accel_noise: float = 0.02,
-        gyro_noise: float = 0.002,
+        model=None,
         seed: int = 0,
+        stop_after: float | None = None,
     ) -> None:
+        from weldcell.hal.sim.inertial import ImuModel
+
         super().__init__(name, frame=name)
         self.world = world
         self.parent = parent
-        self.T_parent_imu = np.eye(4) if T_parent_imu is None else T_parent_imu
-        self.accel_noise, self.gyro_noise = accel_noise, gyro_noise
-        self.rng = np.random.default_rng(seed)
-        self._last: tuple[float, np.ndarray] | None = None
+        self.T_parent_imu = np.eye(4) if T_parent_imu is None else np.asarray(T_parent_imu, float)
+        self.model = model or ImuModel()
+        self.seed = seed
+        self.stop_after = stop_after
+        self.connected = True
+        self.sim = None
+        self.stream_rate_hz = 100.0
+
+    def on_configure(self) -> None:
+        from weldcell.hal.sim.inertial import ImuSimulator
+
+        if not self.connected:
+            raise DeviceError(f"simulated IMU '{self.name}' is not connected", "recover() reconnects")
+        site = getattr(self.world, "site", None)
+        if site is not None and self.parent == _SITE_BASE:
+            route_kin = site.route.kinematics
+
+            def kin(t):
+                R, v, a, w = route_kin(t)
+                return R, v, a, w, site.route.pos(np.clip(t, 0.0, site.route.duration))
+
+            sim = ImuSimulator(self.model, kin, self.T_parent_imu, self.seed, site.distance_to_steel)
+        else:
+            T = self.world.T_world(self.parent)
+
+            def kin(t):
+                n = len(np.atleast_1d(t))
+                z = np.zeros((n, 3))
+                return np.tile(T[:3, :3], (n, 1, 1)), z, z, z, np.tile(T[:3, 3], (n, 1))
+
+            sim = ImuSimulator(self.model, kin, self.T_parent_imu, self.seed)
+        if self.sim is not None:  # a reconfigure keeps the sensor's own biases and time
+            sim.b_g, sim.b_a, sim.t_next = self.sim.b_g, self.sim.b_a, self.sim.t_next
+        sim.t_next = max(sim.t_next, self.world.clock.t)
+        self.sim = sim
+
+    def on_recover(self) -> None:
+        self.connected = True
+
+    def _epoch(self) -> float:
+        site = getattr(self.world, "site", None)
+        return site.epoch if site is not None else 0.0
+
+    def _readings(self, t_end: float) -> list[ImuReading]:
+        if not self.connected or (self.stop_after is not None and self.sim.t_next > self.stop_after):
+            self.connected = False
+            raise self.fault("no IMU data (the serial link is silent)")
+        t, acc, gyr, mag, _ = self.sim.samples_until(t_end)
+        e = self._epoch()
+        return [
+            ImuReading(e + t[i], acc[i], gyr[i], mag=mag[i], frame=self.name, device_stamp=float(t[i]))
+            for i in range(len(t))
+        ]
 
     def _read(self, timeout: float) -> ImuReading:
-        from scipy.spatial.transform import Rotation
+        t = self.sim.t_next
+        if self.world.clock.t < t:
+            self.world.clock.advance(t - self.world.clock.t)
+        return self._readings(t)[0]
 
-        T = self.world.T_world(self.parent) @ self.T_parent_imu
-        t = self.world.clock.advance(0.005)
-        gyro = np.zeros(3)
-        if self._last is not None and t > self._last[0]:
-            dR = self._last[1][:3, :3].T @ T[:3, :3]
-            gyro = Rotation.from_matrix(dR).as_rotvec() / (t - self._last[0])
-        self._last = (t, T)
-        accel = T[:3, :3].T @ np.array([0.0, 0.0, 9.80665])
-        return ImuReading(
-            time.time(),
-            accel + self.rng.normal(0, self.accel_noise, 3),
-            gyro + self.rng.normal(0, self.gyro_noise, 3),
-            mag=T[:3, :3].T @ np.array([0.0, 22.0, -42.0]),
-            orientation=Rotation.from_matrix(T[:3, :3]).as_quat(),
-            frame=self.name,
-        )
+    def _read_burst(self, timeout: float) -> list:
+        if getattr(self.world, "site", None) is None:
+            return [self._read(timeout)]
+        return self._readings(self.world.clock.t)
 
 
 class SimGnss(Gnss):
-    """A GNSS receiver at a frame of the world; the world origin is at ``origin`` (lat, lon, alt)."""
+    """A GNSS receiver (:mod:`.gnss_model`: u-blox M8T standalone or RTK) on a frame of the world;
+    the world origin is at ``origin`` (lat, lon, alt), the world frame is the local ENU frame.
+
+    On the site's mobile base it loses its fix under roofs and degrades near steel; fixes stream at
+    ``model.rate`` up to the simulated clock (like :class:`SimImu`); a no-fix solution is a reading
+    with ``fix_type`` "none" and NaN coordinates.
+    """
 
     def __init__(
         self,
@@ -331,31 +580,83 @@ class SimGnss(Gnss):
         parent: str = "world",
         name: str = "gnss",
         origin: tuple[float, float, float] = (22.5966, 113.9976, 30.0),
-        sigma: float = 0.02,
+        model=None,
         seed: int = 0,
+        T_parent_antenna: np.ndarray | None = None,
     ) -> None:
+        from weldcell.hal.sim.gnss_model import GnssModel
+
         super().__init__(name, frame="enu")
         self.world = world
         self.parent = parent
         self.origin = origin
-        self.sigma = sigma
-        self.rng = np.random.default_rng(seed)
+        self.model = model or GnssModel(mode="rtk")
+        self.model.origin = origin
+        self.seed = seed
+        self.T_parent_antenna = np.eye(4) if T_parent_antenna is None else np.asarray(T_parent_antenna, float)
+        self.sim = None
+        self.stream_rate_hz = 20.0
+
+    def on_configure(self) -> None:
+        from weldcell.hal.sim.gnss_model import GnssSimulator
+
+        site = getattr(self.world, "site", None)
+        lever = self.T_parent_antenna[:3, 3]
+        if site is not None and self.parent == _SITE_BASE:
+
+            def pos(t):
+                return transform_points(site.route.pose(t), lever[None])[0]
+
+            sim = GnssSimulator(self.model, pos, site.under_roof, site.distance_to_steel, self.seed)
+        else:
+            T = self.world.T_world(self.parent)
+
+            def pos(t):
+                return transform_points(T, lever[None])[0]
+
+            sim = GnssSimulator(self.model, pos, seed=self.seed)
+        if self.sim is not None:
+            sim.t_next = self.sim.t_next
+        sim.t_next = max(sim.t_next, self.world.clock.t)
+        self.sim = sim
+
+    def _fix(self, s: dict) -> GnssFix:
+        from weldcell.hal.sim.gnss_model import enu_to_geodetic
+
+        site = getattr(self.world, "site", None)
+        stamp = (site.epoch if site is not None else 0.0) + s["t"]
+        if s["enu"] is None:
+            nan = float("nan")
+            return GnssFix(stamp, nan, nan, nan, fix_type="none", device_stamp=s["t"], num_sv=2)
+        lat, lon, alt = enu_to_geodetic(s["enu"], self.origin)
+        cov = np.diag([s["sigma_h"] ** 2, s["sigma_h"] ** 2, s["sigma_v"] ** 2])
+        return GnssFix(
+            stamp,
+            lat,
+            lon,
+            alt,
+            enu=s["enu"],
+            covariance=cov,
+            fix_type=s["fix_type"],
+            device_stamp=s["t"],
+            h_acc=s["sigma_h"],
+            v_acc=s["sigma_v"],
+            num_sv=14,
+        )
 
     def _read(self, timeout: float) -> GnssFix:
-        p = transform_points(self.world.T_world(self.parent), np.zeros((1, 3)))[0]
-        enu = p + self.rng.normal(0.0, self.sigma, 3)
-        lat0, lon0, alt0 = self.origin
-        r = 6378137.0
-        lat = lat0 + np.degrees(enu[1] / r)
-        lon = lon0 + np.degrees(enu[0] / (r * np.cos(np.radians(lat0))))
-        return GnssFix(
-            time.time(),
-            float(lat),
-            float(lon),
-            float(alt0 + enu[2]),
-            enu=enu,
-            covariance=np.eye(3) * self.sigma**2,
-        )
+        t = self.sim.t_next
+        if self.world.clock.t < t:
+            self.world.clock.advance(t - self.world.clock.t)
+        return self._fix(self.sim.samples_until(t)[0])
+
+    def _read_burst(self, timeout: float) -> list:
+        if getattr(self.world, "site", None) is None:
+            return [self._read(timeout)]
+        return [self._fix(s) for s in self.sim.samples_until(self.world.clock.t)]
+
+
+_SITE_BASE = "base"  # the site's mobile base (hal.sim.site.BASE_FRAME)
 
 
 def T_world_to_base(world: SimWorld, robot_role: str) -> np.ndarray:

@@ -49,7 +49,7 @@ def weldcell_register_devices(register) -> None:
         DeviceSpec(
             name="displacement.sim",
             kind="displacement_sensor",
-            summary="ray-cast 1-D laser sensor",
+            summary="ray-cast 1-D laser triangulation sensor (optoNCDT 1402: range, spot, edges, 1.5 kHz)",
             settings=s.SimDisplacementSettings,
             factory=f.displacement,
             simulated=True,
@@ -60,7 +60,8 @@ def weldcell_register_devices(register) -> None:
         DeviceSpec(
             name="projector.sim",
             kind="laser_projector",
-            summary="projector that records its drawing",
+            summary="pinhole projector on a world or flange frame; its light ray-cast onto the scene",
+            settings=s.SimProjectorSettings,
             factory=f.projector,
             simulated=True,
             probe=f.probe,

@@ -18,7 +18,15 @@ WORLD_KEY = "sim.world"
 def world(ctx) -> SimWorld:
     """The run's simulated world (built once from the profile's [sim] section)."""
     if WORLD_KEY not in ctx.shared:
-        ctx.shared[WORLD_KEY] = SimWorld.from_section(ctx.profile.profile.sim, seed=ctx.seed)
+        w = SimWorld.from_section(ctx.profile.profile.sim, seed=ctx.seed)
+        devs = ctx.profile.profile.devices.values()
+        on_base = any(e.mount.parent == "base" for e in devs)
+        if on_base and not any(e.plugin.startswith("robot.") for e in devs):
+            from weldcell.hal.sim.site import install_site
+
+            # sensors on a base with no arm in the cell: the mobile robot's base on the simulated site
+            install_site(w, seed=ctx.seed)
+        ctx.shared[WORLD_KEY] = w
     return ctx.shared[WORLD_KEY]
 
 
@@ -66,6 +74,8 @@ def camera(settings, ctx) -> d.SimDepthCamera:
         noise=settings.noise,
         decimation=settings.decimation,
         seed=ctx.seed + 1,
+        frame_time=1.0 / settings.fps,
+        color=settings.color,
     )
     if settings.stop_after is not None:
         _stop_after(cam, settings.stop_after)
@@ -97,42 +107,101 @@ def gesture(settings, ctx) -> d.SimGestureSensor:
 
 
 def displacement(settings, ctx) -> d.SimDisplacementSensor:
+    from weldcell.hal.sim.laser_model import preset
+
+    spec = preset(settings.model).with_overrides(
+        min_range=settings.min_range,
+        max_range=settings.max_range,
+        accuracy=settings.noise,
+        spot_diameter=settings.spot_diameter,
+        coupling=settings.coupling,
+        edge_dropout=settings.edge_dropout,
+        rate=settings.rate,
+    )
     return d.SimDisplacementSensor(
         world(ctx),
         ctx.T_parent_device,
         parent=ctx.mount.parent,
         name=ctx.role,
-        min_range=settings.min_range,
-        max_range=settings.max_range,
-        noise=settings.noise,
+        spec=spec,
         seed=ctx.seed + 3,
+        latency=settings.latency,
+        stop_after=settings.stop_after,
     )
 
 
 def projector(settings, ctx) -> d.SimProjector:
-    return d.SimProjector(name=ctx.role)
+    from weldcell.hal.readings import Intrinsics
+
+    s = settings if settings is not None else _projector_settings()
+    cx = s.width / 2 if s.cx is None else s.cx
+    cy = s.height / 2 if s.cy is None else s.cy
+    T_true = ctx.T_parent_device
+    if s.mount_error > 0 or s.mount_error_angle > 0:
+        rng = np.random.default_rng(ctx.seed + 19)
+        axis, direction = rng.normal(size=3), rng.normal(size=3)
+        T_true = T_true @ T_from_rotvec(
+            axis / np.linalg.norm(axis) * s.mount_error_angle,
+            direction / np.linalg.norm(direction) * s.mount_error,
+        )
+    return d.SimProjector(
+        world(ctx),
+        T_true,
+        parent=ctx.mount.parent,
+        name=ctx.role,
+        intrinsics=Intrinsics(s.width, s.height, s.fx, s.fy, cx, cy),
+    )
+
+
+def _projector_settings():
+    from weldcell.plugins.sim.settings import SimProjectorSettings
+
+    return SimProjectorSettings()
 
 
 def imu(settings, ctx) -> d.SimImu:
+    from weldcell.hal.sim.inertial import ImuModel
+
+    fields = (
+        "rate",
+        "gyro_noise_density",
+        "accel_noise_density",
+        "gyro_random_walk",
+        "accel_random_walk",
+        "gyro_turn_on_bias",
+        "accel_turn_on_bias",
+        "hard_iron",
+        "soft_iron",
+        "steel_strength",
+    )
     return d.SimImu(
         world(ctx),
         parent=ctx.mount.parent,
         T_parent_imu=ctx.T_parent_device,
         name=ctx.role,
-        accel_noise=settings.accel_noise,
-        gyro_noise=settings.gyro_noise,
+        model=ImuModel(**{f: getattr(settings, f) for f in fields}),
         seed=ctx.seed + 4,
+        stop_after=settings.stop_after,
     )
 
 
 def gnss(settings, ctx) -> d.SimGnss:
+    from weldcell.hal.sim.gnss_model import GnssModel
+
     return d.SimGnss(
         world(ctx),
         parent=ctx.mount.parent,
         name=ctx.role,
         origin=(settings.latitude, settings.longitude, settings.altitude),
-        sigma=settings.sigma,
+        model=GnssModel(
+            rate=settings.rate,
+            mode=settings.mode,
+            sigma_h=settings.sigma,
+            rtk_sigma_h=settings.rtk_sigma,
+            rtk_sigma_v=2 * settings.rtk_sigma,
+        ),
         seed=ctx.seed + 5,
+        T_parent_antenna=ctx.T_parent_device,
     )
 
 

@@ -7,7 +7,7 @@ from typing import Literal
 from pydantic import Field
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.sdk.settings import Settings
-from weldcell.sdk.units import Angle, Frequency, Length
+from weldcell.sdk.units import Angle, Duration, Frequency, Length
 
 CameraPresetName = Literal["realsense-d415", "realsense-d435", "phoxi-s", "phoxi-m", "azure-kinect", "zed2i"]
 RobotModelName = Literal["ur5", "ur10e", "franka-panda", "aubo-i5", "abb-irb2600"]
@@ -53,6 +53,10 @@ class SimCameraSettings(Settings):
     stop_after: int | None = Field(
         None, ge=0, description="stop delivering frames after this many (fault tests)"
     )
+    color: bool = Field(
+        False, description="also render a registered colour image (textured surfaces; RGB-D cameras)"
+    )
+    fps: Frequency = Field(30.0, gt=0, le=100, description="frame rate: simulated time per frame [Hz]")
 
 
 class SimGestureSettings(Settings):
@@ -66,24 +70,76 @@ class SimGestureSettings(Settings):
 
 
 class SimDisplacementSettings(Settings):
-    """A 1-D laser displacement sensor (optoNCDT-like)."""
+    """A 1-D laser triangulation sensor with an optoNCDT 1402's characteristics (docs/simulated-cell.md)."""
 
-    min_range: Length = Field(0.03, gt=0, description="start of the measuring range [m]")
-    max_range: Length = Field(0.30, gt=0, description="end of the measuring range [m]")
-    noise: Length = Field(2e-6, ge=0, description="reading noise, 1 sigma [m]")
+    model: Literal["ild1402-100", "ild1402-200", "ild1402-600"] = Field(
+        "ild1402-200", description="sensor model: measuring range, spot size and rate from its data sheet"
+    )
+    min_range: Length | None = Field(None, gt=0, description="start of measuring range [m]; default: model")
+    max_range: Length | None = Field(None, gt=0, description="end of the measuring range [m]; default: model")
+    noise: Length | None = Field(
+        None, ge=0, description="distance noise on a flat matte surface, 1 sigma [m]; default 0.288 mm (§II)"
+    )
+    spot_diameter: Length | None = Field(None, gt=0, description="laser spot diameter [m]; default: model's")
+    coupling: Length = Field(
+        0.4e-3, ge=0, description="bound of the robot-sensor coupling error when carried by a robot [m] (§II)"
+    )
+    edge_dropout: float = Field(
+        0.5, ge=0, le=1, description="probability that a spot straddling an edge gives no reading"
+    )
+    rate: Frequency = Field(1500.0, gt=0, description="measuring rate of the stream [Hz]")
+    latency: Duration = Field(
+        0.003, ge=0, description="how late the readings are stamped versus the robot's poses [s]"
+    )
+    stop_after: Duration | None = Field(
+        None, ge=0, description="stop answering after this much simulated time (fault tests) [s]"
+    )
+
+
+class SimProjectorSettings(Settings):
+    """A video laser projector (ShowWX+ class) as a pinhole inverse camera."""
+
+    width: int = Field(848, gt=0, description="image width [px]")
+    height: int = Field(480, gt=0, description="image height [px]")
+    fx: float = Field(1000.0, gt=0, description="focal length [px]")
+    fy: float = Field(1000.0, gt=0, description="focal length [px]")
+    cx: float | None = Field(None, description="principal point x [px]; default: image centre")
+    cy: float | None = Field(None, description="principal point y [px]; default: image centre")
+    mount_error: Length = Field(
+        0.0, ge=0, description="the true mount is off the profile's by this much (calibration finds it) [m]"
+    )
+    mount_error_angle: Angle = Field(0.0, ge=0, description="rotation part of the mount error [rad]")
 
 
 class SimImuSettings(Settings):
-    """An IMU on a world frame."""
+    """A 9-axis IMU (BMI088/ICM-20948 class by default; see hal/sim/inertial.py for the model)."""
 
-    accel_noise: float = Field(0.02, ge=0, description="accelerometer noise [m/s^2]")
-    gyro_noise: float = Field(0.002, ge=0, description="gyroscope noise [rad/s]")
+    rate: Frequency = Field(200.0, gt=0, le=2000, description="sample rate [Hz]")
+    gyro_noise_density: float = Field(2.4e-4, ge=0, description="gyro white noise [rad/s/sqrt(Hz)]")
+    accel_noise_density: float = Field(1.7e-3, ge=0, description="accelerometer white noise [m/s^2/sqrt(Hz)]")
+    gyro_random_walk: float = Field(2.0e-5, ge=0, description="gyro bias random walk [rad/s^2/sqrt(Hz)]")
+    accel_random_walk: float = Field(3.0e-4, ge=0, description="accel bias random walk [m/s^3/sqrt(Hz)]")
+    gyro_turn_on_bias: float = Field(
+        0.0, ge=0, description="1-sigma gyro bias at power-on [rad/s] (0: factory-compensated)"
+    )
+    accel_turn_on_bias: float = Field(
+        0.0, ge=0, description="1-sigma accelerometer bias at power-on [m/s^2] (0: factory-compensated)"
+    )
+    hard_iron: float = Field(8.0, ge=0, description="1-sigma magnetometer hard-iron offset [uT]")
+    soft_iron: float = Field(0.05, ge=0, description="1-sigma soft-iron matrix off-identity terms")
+    steel_strength: float = Field(15.0, ge=0, description="field anomaly 1 m from steel [uT]")
+    stop_after: float | None = Field(None, ge=0, description="fall silent after this simulated time [s]")
 
 
 class SimGnssSettings(Settings):
-    """A GNSS receiver on a world frame."""
+    """A GNSS receiver (u-blox M8T standalone, or with RTK corrections); see hal/sim/gnss_model.py."""
 
     latitude: float = Field(22.5966, ge=-90, le=90, description="latitude of the world origin [deg]")
     longitude: float = Field(113.9976, ge=-180, le=180, description="longitude of the world origin [deg]")
     altitude: Length = Field(30.0, description="altitude of the world origin [m]")
-    sigma: Length = Field(0.02, ge=0, description="position noise, 1 sigma [m]")
+    mode: Literal["rtk", "standalone"] = Field(
+        "rtk", description="'standalone' (M8T alone: ~2 m wandering error) or 'rtk' (1-2 cm)"
+    )
+    rate: Frequency = Field(5.0, gt=0, le=20, description="solution rate [Hz]")
+    sigma: Length = Field(2.1, gt=0, description="standalone horizontal 1-sigma per axis [m]")
+    rtk_sigma: Length = Field(0.01, gt=0, description="RTK horizontal 1-sigma [m] (vertical: twice)")

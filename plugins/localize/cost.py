@@ -1,0 +1,185 @@
+"""The fit error of eq. (3) (paper 002, §IV) and its fast look-up.
+
+Edge points are moved into the template's planned frame by the inverse pose, so the segments stay fixed;
+the distance of a point to the nearest template segment is computed for all points and all segments at
+once (numpy broadcasting, no Python loop). :class:`DistanceField` samples the same distance on a grid
+(``scipy.ndimage.distance_transform_edt`` of the rasterised outlines) for the global search.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .pose import inverse_xy
+from .template import Template
+
+
+@dataclass
+class Segments:
+    """Template segments in the planned frame: ``a`` (S, 2), ``d`` = b - a, ``len2`` = |d|^2, ``owner``."""
+
+    a: np.ndarray
+    d: np.ndarray
+    len2: np.ndarray
+    owner: np.ndarray
+    center: np.ndarray
+
+    @property
+    def array(self) -> np.ndarray:
+        """(S, 2, 2) endpoints."""
+        return np.stack([self.a, self.a + self.d], axis=1)
+
+    @classmethod
+    def of(cls, tpl: Template) -> Segments:
+        segs, owner = tpl.segments()
+        a, d = segs[:, 0], segs[:, 1] - segs[:, 0]
+        return cls(a, d, np.maximum((d * d).sum(axis=1), 1e-18), owner, tpl.centroid)
+
+    @classmethod
+    def from_array(cls, segments: np.ndarray, center, owner=None) -> Segments:
+        a, d = segments[:, 0], segments[:, 1] - segments[:, 0]
+        own = np.zeros(len(a), int) if owner is None else np.asarray(owner)
+        return cls(a, d, np.maximum((d * d).sum(axis=1), 1e-18), own, np.asarray(center, float))
+
+    def subset(self, keep: np.ndarray) -> Segments:
+        return Segments(self.a[keep], self.d[keep], self.len2[keep], self.owner[keep], self.center)
+
+
+def nearest(q: np.ndarray, segs: Segments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For points ``q`` (N, 2) in the planned frame: distance to the nearest segment (N,), its index (N,),
+    and the closest point on it (N, 2)."""
+    rel = q[:, None, :] - segs.a[None, :, :]
+    t = np.clip((rel * segs.d[None]).sum(axis=2) / segs.len2[None], 0.0, 1.0)
+    diff = rel - t[:, :, None] * segs.d[None]
+    d2 = (diff * diff).sum(axis=2)
+    j = d2.argmin(axis=1)
+    rows = np.arange(len(q))
+    closest = segs.a[j] + t[rows, j, None] * segs.d[j]
+    return np.sqrt(d2[rows, j]), j, closest
+
+
+def distances(pose, xy: np.ndarray, segs: Segments, fld: DistanceField | None = None) -> np.ndarray:
+    """Distance of each edge point (found frame) to the nearest segment of the template moved by pose
+    (all points x all segments; with ``fld``, the O(N) Voronoi-label evaluation of :func:`nearest_fast`)."""
+    if fld is not None:
+        return _fast_distances(pose, xy, segs, fld)
+    q = inverse_xy(pose, segs.center, xy)
+    rel = q[:, None, :] - segs.a[None, :, :]
+    t = np.clip((rel * segs.d[None]).sum(axis=2) / segs.len2[None], 0.0, 1.0)
+    diff = rel - t[:, :, None] * segs.d[None]
+    return np.sqrt((diff * diff).sum(axis=2).min(axis=1))
+
+
+def fit_error(pose, xy: np.ndarray, segs: Segments) -> float:
+    """Eq. (3): the sum over edge points of the distance to the nearest template segment (m)."""
+    return float(distances(pose, xy, segs).sum())
+
+
+@dataclass
+class DistanceField:
+    """Distance (m) to the nearest template segment on a grid of ``res`` covering the template + ``margin``,
+    truncated at ``cap`` (for the global search), and the index of that nearest segment per cell (``label``,
+    a Voronoi map from the same transform) so that the exact distance of a point is one segment away."""
+
+    field: np.ndarray
+    label: np.ndarray
+    origin: np.ndarray
+    res: float
+    cap: float
+
+    @classmethod
+    def of(cls, segments: np.ndarray, res: float, margin: float, cap: float) -> DistanceField:
+        """From segments (S, 2, 2) in the planned frame."""
+        from scipy.ndimage import distance_transform_edt
+
+        pts = segments.reshape(-1, 2)
+        lo = pts.min(axis=0) - margin
+        shape = np.ceil((pts.max(axis=0) + margin - lo) / res).astype(int) + 1
+        ids = np.full(shape[::-1], -1, dtype=np.int32)  # rows = y, cols = x
+        for k, (a, b) in enumerate(segments):
+            n = int(np.ceil(np.linalg.norm(b - a) / (res * 0.5))) + 1
+            t = np.linspace(0.0, 1.0, n)[:, None]
+            ij = np.round((a + t * (b - a) - lo) / res).astype(int)
+            ids[ij[:, 1], ij[:, 0]] = k
+        f, ind = distance_transform_edt(ids < 0, return_indices=True)
+        label = ids[ind[0], ind[1]]
+        return cls(np.minimum(f * res, cap).astype(np.float32), label.astype(np.int32), lo, res, cap)
+
+    def cells(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat cell index of planned-frame points and whether they fall inside the grid."""
+        h, w = self.field.shape
+        ij = np.round((q - self.origin) / self.res).astype(np.int64)
+        inside = (ij[..., 0] >= 0) & (ij[..., 0] < w) & (ij[..., 1] >= 0) & (ij[..., 1] < h)
+        return np.clip(ij[..., 1], 0, h - 1) * w + np.clip(ij[..., 0], 0, w - 1), inside
+
+    def lookup_flat(self, q: np.ndarray) -> np.ndarray:
+        return self.cells(q)[0]
+
+    def bilinear(self, q: np.ndarray) -> np.ndarray:
+        h, w = self.field.shape
+        g = (q - self.origin) / self.res
+        x0 = np.clip(np.floor(g[:, 0]).astype(np.int64), 0, w - 2)
+        y0 = np.clip(np.floor(g[:, 1]).astype(np.int64), 0, h - 2)
+        fx, fy = np.clip(g[:, 0] - x0, 0, 1), np.clip(g[:, 1] - y0, 0, 1)
+        f = self.field
+        return (
+            f[y0, x0] * (1 - fx) * (1 - fy)
+            + f[y0, x0 + 1] * fx * (1 - fy)
+            + f[y0 + 1, x0] * (1 - fx) * fy
+            + f[y0 + 1, x0 + 1] * fx * fy
+        )
+
+
+def nearest_fast(q: np.ndarray, segs: Segments, fld: DistanceField | None):
+    """:func:`nearest` in O(N): the segment is the cell's Voronoi label, the distance to it exact. Points
+    outside the grid get the full search. Near a medial axis the label may be the runner-up segment, whose
+    distance differs by less than a cell."""
+    if fld is None:
+        return nearest(q, segs)
+    flat, inside = fld.cells(q)
+    j = fld.label.ravel()[flat].astype(np.int64)
+    rel = q - segs.a[j]
+    t = np.clip((rel * segs.d[j]).sum(axis=1) / segs.len2[j], 0.0, 1.0)
+    cp = segs.a[j] + t[:, None] * segs.d[j]
+    d = np.linalg.norm(q - cp, axis=1)
+    if not inside.all():
+        out = ~inside
+        d[out], j[out], cp[out] = nearest(q[out], segs)
+    return d, j, cp
+
+
+def _fast_distances(pose, xy: np.ndarray, segs: Segments, fld: DistanceField) -> np.ndarray:
+    """:func:`distances` through the Voronoi labels, written for the optimiser's inner loop."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    cx, cy = segs.center
+    px, py = xy[:, 0] - (cx + pose[0]), xy[:, 1] - (cy + pose[1])
+    qx, qy = c * px + s * py + cx, c * py - s * px + cy
+    h, w = fld.label.shape
+    ix = np.rint((qx - fld.origin[0]) / fld.res).astype(np.int64)
+    iy = np.rint((qy - fld.origin[1]) / fld.res).astype(np.int64)
+    inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+    if not inside.all():
+        return nearest_fast(np.column_stack([qx, qy]), segs, fld)[0]
+    j = fld.label[iy, ix]
+    ax, ay, dx, dy = segs.a[j, 0], segs.a[j, 1], segs.d[j, 0], segs.d[j, 1]
+    rx, ry = qx - ax, qy - ay
+    t = np.clip((rx * dx + ry * dy) / segs.len2[j], 0.0, 1.0)
+    ex, ey = rx - t * dx, ry - t * dy
+    return np.sqrt(ex * ex + ey * ey)
+
+
+_FIELDS: dict[tuple, DistanceField] = {}
+
+
+def field_for(segments: np.ndarray, res: float, margin: float, cap: float) -> DistanceField:
+    """The cached :class:`DistanceField` of these segments (built once per geometry and process)."""
+    import hashlib
+
+    key = (hashlib.sha1(np.ascontiguousarray(segments).tobytes()).hexdigest(), res, margin, cap)
+    if key not in _FIELDS:
+        if len(_FIELDS) > 8:
+            _FIELDS.clear()
+        _FIELDS[key] = DistanceField.of(segments, res, margin, cap)
+    return _FIELDS[key]
