@@ -63,7 +63,8 @@ case "${1:-demo}" in
     ;;
   test)
     shift || true
-    exec "$VENV/bin/python" -m pytest -q "$@"
+    # one pytest worker per core; a test file runs in one worker (module fixtures are built once)
+    exec "$VENV/bin/python" -m pytest -q -n auto --dist loadfile "$@"
     ;;
   setup)
     say "ready: source $VENV/bin/activate, then run weldcell --help"
