@@ -22,10 +22,11 @@ command -v "$PY" >/dev/null || die "python3 not found; install Python 3.11+ (apt
   || die "weldcell needs Python 3.11 or newer; found $("$PY" --version 2>&1). Set PYTHON=/path/to/python3.11"
 
 # System packages: open3d links libusb-1.0, libgomp, libGL, libEGL and libX11; venv needs python3-venv
-# on Debian's own Python; xvfb gives the projector adapter's window tests a real X display.
+# on Debian's own Python; xvfb gives the projector adapter's window tests a real X display; chromium lets
+# the report tests open report.html in a real (headless) browser.
 need=()
 if command -v dpkg >/dev/null; then
-  for pkg in libusb-1.0-0 libgomp1 libgl1 libegl1 libx11-6 xvfb; do
+  for pkg in libusb-1.0-0 libgomp1 libgl1 libegl1 libx11-6 xvfb chromium; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
   done
   if ! "$PY" -c 'import ensurepip, venv' >/dev/null 2>&1; then

@@ -42,6 +42,29 @@ def fsync_dir(path: str | Path) -> None:
         os.close(fd)
 
 
+def current_umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux), else by the
+    usual set-and-restore."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def file_mode(path: str | Path) -> int:
+    """The permission bits a new version of ``path`` gets: the existing file's, else ``0666`` minus the
+    user's umask (what ``open(path, "w")`` creates)."""
+    try:
+        return os.stat(path).st_mode & 0o777
+    except OSError:
+        return 0o666 & ~current_umask()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path`` in one rename.
@@ -52,6 +75,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:  # mkstemp makes 0600: give the file the mode a plain open() would (or keep the target's)
+        os.fchmod(fd, file_mode(path))
+    except (AttributeError, OSError):  # e.g. no fchmod on Windows
+        pass
     os.close(fd)
     tmp_path = Path(tmp)
     try:

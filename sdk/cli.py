@@ -27,6 +27,8 @@ class _RedactingConsole(Console):
     def print(self, *objects, **kwargs) -> None:  # type: ignore[override]
         from weldcell.sdk.secrets import redact
 
+        if not self.is_terminal:  # a file or a pipe: one line per message, never wrapped mid-phrase
+            kwargs.setdefault("soft_wrap", True)
         super().print(*(redact(o) if isinstance(o, str) else o for o in objects), **kwargs)
 
 
@@ -49,9 +51,14 @@ class RichReporter:
             TimeElapsedColumn(),
             console=console,
             transient=True,
-            disable=quiet,
+            disable=quiet or not console.is_terminal,  # no bar (nor its blank lines) in a file or pipe
         )
         self._tasks: dict[str, int] = {}
+        self._labels: dict[str, str] = {}
+
+    def step_label(self, name: str, label: str) -> None:
+        """Show step ``name`` as ``label`` when it finishes (e.g. with the plugin that ran in it)."""
+        self._labels[name] = label
 
     def step_started(self, name: str, total: int | None = None) -> None:
         if total:
@@ -68,12 +75,25 @@ class RichReporter:
             self._progress.remove_task(self._tasks.pop(name))
             if not self._tasks:
                 self._progress.stop()
+        label = self._labels.pop(name, name)
         if not self.quiet:
-            console.print(f"  [green]✓[/green] {name} [dim]{seconds:.2f} s[/dim]")
+            console.print(f"  [green]✓[/green] {escape(label)} [dim]{seconds:.2f} s[/dim]")
 
     def info(self, message: str) -> None:
         if not self.quiet:
             console.print(f"  {message}", markup=True)
+
+
+def _traceback_helps(e: WeldcellError) -> bool:
+    """Whether ``--debug``'s traceback tells more than the message: only when the error wraps an
+    unexpected exception (a bug, a vendor library's failure), not for bad input, a refused motion or
+    a profile problem, whose message and fix say everything; and not when the fix already says so."""
+    if "--debug" in (e.fix or ""):
+        return False
+    cause = e.__cause__
+    while isinstance(cause, WeldcellError):
+        cause = cause.__cause__
+    return isinstance(cause, Exception)
 
 
 class WeldcellGroup(click.Group):
@@ -130,7 +150,7 @@ class WeldcellGroup(click.Group):
                 console.print(f"  - {escape(line)}")
             if e.fix:
                 console.print(f"  [bold]fix:[/bold] {escape(e.fix)}")
-            if not debug:
+            if not debug and _traceback_helps(e):
                 console.print("  [dim](--debug shows the traceback)[/dim]")
             ctx.exit(e.exit_code)
         except KeyboardInterrupt:

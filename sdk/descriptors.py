@@ -189,15 +189,45 @@ class ExporterSpec(Descriptor):
 
 
 @dataclass(frozen=True)
+class BatchSpec:
+    """How ``weldcell batch`` runs an offline command on one input (one Dask task per input).
+
+    The worker calls the command as ``[subcommand] [batch --args] INPUT -o OUT_DIR/<input>/<output>``
+    (plus ``report_option <folder>`` when given), exactly as a user would one input at a time.
+    ``inputs``: what one input is, ``"file"``, ``"dir"`` or ``"any"``; a folder given to the batch is
+    one input when it holds one of ``markers`` (``state.json`` of a run folder), else it expands to its
+    files matching ``patterns`` and its sub-folders holding a marker. See docs/scale-out.md.
+    """
+
+    output: str
+    """File name the command writes with ``-o`` (``path.json``, ``model.ply``)."""
+    subcommand: str = ""
+    """For a command group: the batchable sub-command (``"hand-eye"`` of ``calibrate``)."""
+    inputs: str = "file"
+    patterns: tuple[str, ...] = ()
+    markers: tuple[str, ...] = ()
+    report_option: str | None = None
+    """An option that writes a report folder for one input (``--report``), kept with its result."""
+
+    def __post_init__(self) -> None:
+        if self.inputs not in ("file", "dir", "any"):
+            raise PluginError(f"BatchSpec inputs {self.inputs!r} is not 'file', 'dir' or 'any'", None)
+        if not self.output or "/" in self.output:
+            raise PluginError(f"BatchSpec output {self.output!r} must be a plain file name", None)
+
+
+@dataclass(frozen=True)
 class CommandSpec:
     """A click command added to the ``weldcell`` CLI (``weldcell seam``, ``weldcell calibrate``, ...).
 
     A ``name`` with a space, ``"map relocalize"``, adds a sub-command to a group that several plugins
-    share (``weldcell map relocalize``); the CLI makes the group from its members.
+    share (``weldcell map relocalize``); the CLI makes the group from its members. ``batch`` declares
+    the command (or sub-commands of a group) that ``weldcell batch`` may run over many inputs.
     """
 
     name: str
     command: Any
     summary: str = ""
+    batch: tuple[BatchSpec, ...] = ()
     category: ClassVar[str] = "command"
     kind: ClassVar[str] = "command"

@@ -53,6 +53,10 @@ class Reporter:
     def advance(self, name: str, done: int, total: int | None = None, message: str = "") -> None:
         """Progress inside a step."""
 
+    def step_label(self, name: str, label: str) -> None:
+        """Show step ``name`` as ``label`` when it finishes (it names the stage plugins that ran in it;
+        called just before :meth:`step_finished`, only when the two differ)."""
+
     def step_finished(self, name: str, seconds: float) -> None:
         """A step ended."""
 
@@ -95,6 +99,15 @@ def _now() -> str:
 def step_key(name: str) -> str:
     """The short name ``--redo`` accepts for a step: its words before any '(' (lower case)."""
     return name.split(" (")[0].strip().lower()
+
+
+def step_label(name: str, plugins: list[str]) -> str:
+    """How a finished step is shown: its name's words before any '(' with the stage plugins that ran in
+    it (``denoise (denoise.bilateral)``), so the label never names a method that did not run; the name
+    as given when no stage ran in it or it already names them all."""
+    if not plugins or all(p in name for p in plugins):
+        return name
+    return f"{name.split(' (')[0].strip()} ({', '.join(plugins)})"
 
 
 @dataclass
@@ -264,11 +277,15 @@ class RunContext:
         self.redo: set[str] = {self.state.match_step(k) for k in redo}
         self.figures: dict[str, Any] = {}
         self._stages: dict[str, Any] = {}
+        self._open_steps: list[list[str]] = []  # stage roles used inside each step being run
         self.rng = np.random.default_rng(self.profile.cell.seed)
 
     # -- methods ---------------------------------------------------------------------------------
     def stage(self, role: str) -> Any:
-        """The stage object filling ``role`` (built once from its plugin and settings)."""
+        """The stage object filling ``role`` (built once from its plugin and settings). Used inside a
+        step, the step is labelled with the plugin's name (:func:`step_label`)."""
+        if self._open_steps and role not in self._open_steps[-1]:
+            self._open_steps[-1].append(role)
         if role not in self._stages:
             spec, settings = self.resolved["stages"][role]
             self._stages[role] = spec.factory(settings)
@@ -406,6 +423,7 @@ class RunContext:
         def advance(done: int, total_: int | None = total, message: str = "") -> None:
             self.reporter.advance(name, done, total_, message)
 
+        self._open_steps.append([])
         try:
             yield advance
         except BaseException as e:
@@ -413,10 +431,17 @@ class RunContext:
             text = secrets.redact(str(e).splitlines()[0] if str(e) else type(e).__name__)
             self.state.set_step(name, status=status, error=text, finished=_now())
             raise
+        finally:
+            roles = self._open_steps.pop()
         dt = time.perf_counter() - t0
         self.timings[name] = self.timings.get(name, 0.0) + dt
-        self.state.set_step(name, status="done", seconds=round(dt, 4), finished=_now())
+        plugins = [self.resolved["stages"][r][0].name for r in roles if r in self.resolved["stages"]]
+        used = {"plugins": plugins} if plugins else {}
+        self.state.set_step(name, status="done", seconds=round(dt, 4), finished=_now(), **used)
         self.redo.discard(name)
+        label = step_label(name, plugins)
+        if label != name and callable(getattr(self.reporter, "step_label", None)):
+            self.reporter.step_label(name, label)
         self.reporter.step_finished(name, dt)
 
 

@@ -107,6 +107,38 @@ class DetectorStage(Protocol):
     def __call__(self, rgb: np.ndarray, meta: dict | None = None) -> list[Detection2D]: ...
 
 
+class MapTransferStage(Protocol):
+    """kind ``map-transfer``: local maps in the ``weldcell/map-segments@1`` folder and their transport.
+    ``writer(root, source, cut)`` -> an object with ``add(id, points, colors, T_world_segment, distance,
+    keyframes, extra)``, ``add_existing(src_root, entry)`` and ``finish()``; ``serve(root)`` -> a started
+    server (``address``, ``stop()``); ``fetch(address, out)`` -> a report (``segments``, ``complete``,
+    ``first_segment_s``); ``manifest(root)``, ``world_cloud(root)``, ``segment(root, entry)`` read a folder
+    (see :mod:`weldcell.plugins.map_transfer.stage`)."""
+
+    def writer(self, root: Any, source: str = "", cut: dict | None = None) -> Any: ...
+
+    def serve(self, root: Any) -> Any: ...
+
+    def fetch(self, address: str, out: Any) -> Any: ...
+
+    def manifest(self, root: Any) -> dict: ...
+
+    def world_cloud(self, root: Any) -> Any: ...
+
+    def segment(self, root: Any, entry: dict) -> Any: ...
+
+
+class RelocalizerStage(Protocol):
+    """kind ``relocalizer``: ``prepare(points)`` -> a prior map prepared once per load; ``(prior, current,
+    yaw=None, yaw_sigma=.., position=None, position_sigma=.., keyframe_positions=None)`` -> a result with
+    ``status`` ("ok"|"failed"), ``T_prior_current`` (4x4), ``overlap``, ``confidence``, ``reason`` and
+    ``to_json()`` (``weldcell/relocalization@1``; see :mod:`weldcell.plugins.relocalize.relocalize`)."""
+
+    def prepare(self, points: np.ndarray) -> Any: ...
+
+    def __call__(self, prior: Any, current: np.ndarray, **priors: Any) -> Any: ...
+
+
 STAGE_KINDS: dict[str, type] = {
     "reconstruct": ReconstructStage,
     "denoise": DenoiseStage,
@@ -117,5 +149,7 @@ STAGE_KINDS: dict[str, type] = {
     "edges": EdgesStage,
     "localize": LocalizeStage,
     "detector": DetectorStage,
+    "map-transfer": MapTransferStage,
+    "relocalizer": RelocalizerStage,
 }
 """Stage kind -> the protocol its stage objects answer."""

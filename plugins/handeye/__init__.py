@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
+from weldcell.sdk.descriptors import BatchSpec, CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
 from weldcell.sdk.hookspecs import hookimpl
 
 
@@ -63,5 +63,14 @@ def weldcell_register_commands(register) -> None:
     from weldcell.plugins.handeye.cli import calibrate_group
 
     register(
-        CommandSpec(name="calibrate", command=calibrate_group, summary="calibrate a cell from recorded data")
+        CommandSpec(
+            name="calibrate",
+            command=calibrate_group,
+            summary="calibrate a cell from recorded data",
+            batch=(
+                BatchSpec(
+                    output="handeye.json", subcommand="hand-eye", inputs="dir", report_option="--report"
+                ),
+            ),
+        )
     )

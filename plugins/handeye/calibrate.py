@@ -25,7 +25,7 @@ from weldcell.plugins.handeye.circle import PAPER_E_D, PAPER_E_R, PAPER_K_MAX, P
 from weldcell.plugins.handeye.featurefit import fit_with_unknown_point
 from weldcell.plugins.handeye.iterative import iterative_pool
 from weldcell.plugins.handeye.pointfit import robust_point_fit, scaled_svd_fit
-from weldcell.plugins.handeye.result import CONFIGS, HandEyeResult, HandEyeSample, config_name
+from weldcell.plugins.handeye.result import CONFIGS, HandEyeResult, HandEyeSample, config_name, sample_id
 from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
 from weldcell.plugins.handeye.verification import (
     ConsensusVerifier,
@@ -69,8 +69,10 @@ DEFAULTS: dict = {
     "bootstrap": 100,
     "backend": "auto",
     "board": None,
-    "intrinsics": None,
+    "intrinsics": None,  # (K, dist) for board photos
+    "calibrate_intrinsics": False,  # no intrinsics: calibrate them from the board photos (Zhang)
     "seed": 0,
+    "time_limit": 60.0,  # s: Algorithm 1 takes no new pair after this (bounded run time; None = no limit)
 }
 
 
@@ -156,26 +158,6 @@ def _normals(samples: list[HandEyeSample], keep: list[int], reports: list[dict])
             "give meta['normal'] (camera frame) or a cloud for every sample, or set normal_weight = 1",
         )
     return np.asarray(out, float)
-
-
-def _board_poses(samples: list[HandEyeSample], s: dict) -> np.ndarray:
-    out = []
-    for i, smp in enumerate(samples):
-        if smp.T_cam_target is not None:
-            out.append(np.asarray(smp.T_cam_target, float))
-        elif smp.image is not None:
-            from weldcell.plugins.handeye.board import BoardSpec, board_pose
-
-            if s["intrinsics"] is None:
-                raise UsageError("board images need camera intrinsics", "pass intrinsics=(K, dist)")
-            spec = s["board"] if isinstance(s["board"], BoardSpec) else BoardSpec(**(s["board"] or {}))
-            K, dist = s["intrinsics"]
-            out.append(board_pose(smp.image, spec, K, dist).T_cam_board)
-        else:
-            raise DataError(
-                f"sample {i} has no board pose or image", "target-based methods need T_cam_target or image"
-            )
-    return np.array(out)
 
 
 def _solve(
@@ -272,6 +254,7 @@ def _solve(
                 metrics["robust_sigma"] = rf.sigma
             else:
                 X, res, inl, m2 = _algorithm1(kind, P, c, dst, s)
+                warnings += m2.pop("warnings")
                 metrics.update(m2)
 
             def refit(idx):
@@ -279,8 +262,18 @@ def _solve(
 
         n_in = int(np.sum(inl))
         warnings += _implausible_residuals(res[inl], q, kind)
-        if s["bootstrap"] and n_in >= 5 and method != "flange-iterative":
-            idx_in = np.flatnonzero(inl)
+        idx_in = np.flatnonzero(inl)
+        if method != "flange-iterative" and not isinstance(q, str) and n_in >= 4:
+            conf = diagnostics.point_confidence(
+                c[idx_in], dst[idx_in], X, lambda i: refit(idx_in[i]), s["bootstrap"], s["seed"]
+            )
+            loo = conf["leave_one_out_m"]
+            conf["leave_one_out_m"] = diagnostics.spread_back(loo, idx_in, len(samples), keep)
+            metrics["confidence"] = conf
+            if "bootstrap" in conf:
+                metrics["bootstrap"] = conf["bootstrap"]
+            warnings += diagnostics.influence_warnings(conf, [sample_id(x, k) for k, x in enumerate(samples)])
+        elif s["bootstrap"] and n_in >= 5 and method != "flange-iterative":
             metrics["bootstrap"] = diagnostics.bootstrap(
                 lambda i: refit(idx_in[i]), n_in, s["bootstrap"], s["seed"]
             )
@@ -296,9 +289,15 @@ def _solve(
             "warnings": warnings,
         }
     # target-based
-    C = _board_poses(samples, s)
+    from weldcell.plugins.handeye.board import board_poses
+
+    C = board_poses(samples, s, metrics)
     if P is None:
         raise DataError("target-based methods need robot poses", "give T_base_flange for every sample")
+    seen = np.all(np.isfinite(C.reshape(len(C), -1)), axis=1)
+    if not seen.all():
+        warnings += [f"board not found, sample skipped: {m}" for m in metrics.get("board_not_found", [])]
+        P, C = P[seen], C[seen]
     diagnostics.check_finite("robot poses", P)
     diagnostics.check_finite("board poses", C)
     diagnostics.check_units("robot positions", P[:, :3, 3])
@@ -318,10 +317,12 @@ def _solve(
             min(s["bootstrap"], 50),
             s["seed"],
         )
+    res_full = np.full(len(seen), np.nan)
+    res_full[seen] = res
     return {
         "X": X,
-        "residuals": res,
-        "inliers": np.ones(len(P), bool),
+        "residuals": res_full,
+        "inliers": seen.copy(),
         "extra": info,
         "metrics": metrics,
         "warnings": warnings,
@@ -354,20 +355,40 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         verifier = v
     else:
         raise UsageError(f"unknown verifier {v!r}", "use 'consensus', 'icp' or a callable H -> e")
-    pr = iterative_pool(
-        c,
-        dst,
-        verifier,
-        cost,
-        float(s["e_required"]),
-        int(s["k_max"]),
-        verifier_sees_count=sees,
-        inner=s["inner"],
-        refit=s["refit"],
-        search=s["search"],
-        budget=int(s["budget"]),
-        seed=s["seed"],
-    )
+    warnings: list[str] = []
+    used = "consensus" if sees else ("icp" if isinstance(verifier, IcpVerifier) else "callable")
+    if isinstance(verifier, IcpVerifier):  # can eq. 13 verify even the best estimate there is?
+        H0 = robust_point_fit(c, dst, n_sigma=s["n_sigma"], min_threshold=s["min_threshold"], rng=s["seed"]).T
+        if verifier(H0) is None:
+            warnings.append(_icp_failed(verifier, "even at the all-pairs fit"))
+            verifier, sees, used = ConsensusVerifier(c, dst), True, "consensus (ICP failed)"
+
+    def run(ver, sees_count: bool):
+        return iterative_pool(
+            c,
+            dst,
+            ver,
+            cost,
+            float(s["e_required"]) if not sees_count or v == "consensus" else 0.0,
+            int(s["k_max"]),
+            verifier_sees_count=sees_count,
+            inner=s["inner"],
+            refit=s["refit"],
+            search=s["search"],
+            budget=int(s["budget"]),
+            seed=s["seed"],
+            time_limit=s["time_limit"],
+        )
+
+    pr = run(verifier, sees)
+    if not np.isfinite(pr.cost) and isinstance(verifier, IcpVerifier):
+        warnings.append(_icp_failed(verifier, "for any pool"))
+        pr, used = run(ConsensusVerifier(c, dst), True), "consensus (ICP failed)"
+    if pr.timed_out:
+        warnings.append(
+            f"Algorithm 1 stopped at its time limit ({s['time_limit']:g} s) after {pr.n_used} of {len(c)} "
+            "pairs; the pool is the best found so far (raise time_limit or thin the flange model)"
+        )
     X = pr.H_compensated if (s["compensate"] and pr.H_compensated is not None) else pr.H
     if pr.H_refit is not None:
         X = pr.H_refit
@@ -383,8 +404,19 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         "compensated": bool(s["compensate"] and pr.H_compensated is not None),
         "e_optimal": None if pr.e is None else pr.e,
         "refit_inliers": pr.refit_inliers,
+        "verifier_used": used,
+        "timed_out": pr.timed_out,
+        "warnings": warnings,
     }
     return X, res, inl, m
+
+
+def _icp_failed(verifier: IcpVerifier, when: str) -> str:
+    return (
+        f"the eq. 13 ICP verifier never matched the flange model to the verification scan {when} "
+        f"({verifier.diagnosis()}); Algorithm 1 used the consensus verifier instead. Check the flange "
+        "model (units, the face, its size against --flange-d1) and the verification sample"
+    )
 
 
 PLAUSIBLE_RMS = 0.005  # m: a 3-D scanner's flange centres agree with a right model far better than this

@@ -17,7 +17,15 @@ import numpy as np
 from weldcell.sdk.datafile import check_keys, expect_object, read_json_file, read_toml_file
 from weldcell.sdk.errors import DataError, UsageError
 
-LAYOUTS = ("auto", "weldcell", "ancorasir-sample", "ancorasir-pairs", "ancorasir-kinect")
+LAYOUTS = (
+    "auto",
+    "weldcell",
+    "ancorasir-sample",
+    "ancorasir-pairs",
+    "ancorasir-kinect",
+    "ancorasir-aubo",
+    "rwhe",
+)
 
 
 def detect_layout(path: Path) -> str:
@@ -36,15 +44,21 @@ def detect_layout(path: Path) -> str:
         return "ancorasir-pairs"
     if (path / "readRobot.txt").is_file() and (path / "measureRobot.txt").is_file():
         return "ancorasir-kinect"
+    from weldcell.plugins.handeye.layouts import is_aubo_folder, is_rwhe_folder
+
+    if is_aubo_folder(path):
+        return "ancorasir-aubo"
+    if is_rwhe_folder(path):
+        return "rwhe"
     raise UsageError(
-        f"{path}: no hand-eye data found (no samples.json, calib_data.json, p_camera_mat.npy "
-        "or readRobot.txt)",
+        f"{path}: no hand-eye data found (no samples.json, calib_data.json, p_camera_mat.npy, "
+        "readRobot.txt, data.txt or RobotPosesVec.txt)",
         "point at a folder with samples.json (weldcell/handeye-samples@1) or an ancorasir layout; "
         "--layout forces one",
     )
 
 
-def read_data(path: Path, layout: str = "auto", units: str | None = None):
+def read_data(path: Path, layout: str = "auto", units: str | None = None, quaternion: str = "auto"):
     """Samples of any supported layout as a :class:`~weldcell.plugins.handeye.samples_io.SampleSet`."""
     from weldcell.plugins.handeye import samples_io as io
 
@@ -62,26 +76,43 @@ def read_data(path: Path, layout: str = "auto", units: str | None = None):
     if layout == "ancorasir-sample":
         return io.read_ancorasir_sample(path)
     if layout == "ancorasir-pairs":
-        return io.read_ancorasir_point_pairs(path, units=units or "mm")
+        return io.read_ancorasir_point_pairs(path, units=units or "auto")
     if layout == "ancorasir-kinect":
         return io.read_ancorasir_kinect(path)
+    if layout == "ancorasir-aubo":
+        from weldcell.plugins.handeye.layouts import read_aubo_folder
+
+        return read_aubo_folder(path, quaternion, units)
+    if layout == "rwhe":
+        from weldcell.plugins.handeye.layouts import read_rwhe_folder
+
+        return read_rwhe_folder(path, units)
     raise UsageError(f"unknown layout '{layout}'", f"use one of {', '.join(LAYOUTS)}")
 
 
+#: --settings keys used by the board methods (tsai, park, ...) besides the handeye.flange ones
+BOARD_KEYS = ("board", "intrinsics", "calibrate_intrinsics")
+
+
 def _stage_settings(settings_file: Path | None, overrides: dict):
+    """(FlangeSettings, board settings) from ``--settings`` and the options; a key neither uses is an
+    unknown-key error naming the file."""
     from weldcell.plugins.handeye.stages import FlangeSettings
 
     values: dict = {}
     where = "flange settings"
     if settings_file is not None:
         values, where = _read_settings_file(settings_file), str(settings_file)
-        check_keys(values, FlangeSettings.model_fields, f"{where}: handeye.flange settings")
+        check_keys(values, [*FlangeSettings.model_fields, *BOARD_KEYS], f"{where}: hand-eye settings")
+    board = {k: values.pop(k) for k in BOARD_KEYS if k in values}
+    if "intrinsics" in board and settings_file is not None and isinstance(board["intrinsics"], str):
+        board["intrinsics"] = str((settings_file.parent / board["intrinsics"]).resolve())
     values.update({k: v for k, v in overrides.items() if v is not None})
     from pydantic import ValidationError
     from weldcell.sdk.profile import pydantic_problems
 
     try:
-        return FlangeSettings.model_validate(values)
+        return FlangeSettings.model_validate(values), board
     except ValidationError as e:
         problems = pydantic_problems(e)
         key, msg = problems[0]
@@ -90,6 +121,57 @@ def _stage_settings(settings_file: Path | None, overrides: dict):
             f"{where}: {'.'.join(key)}: {msg}{more}",
             "fix the value (see docs/methods/hand-eye.md)",
         ) from None
+
+
+def board_settings(
+    method: str,
+    given: dict,
+    board: str | None,
+    intrinsics: Path | None,
+    calibrate: bool,
+    layout_board: dict | None,
+) -> dict:
+    """The calibrate() settings for board photos from --board/--intrinsics/--calibrate-intrinsics and the
+    settings file's board keys (the options win). Given to a flange method, they are a usage error."""
+    from weldcell.plugins.handeye.board import BoardSpec, read_intrinsics
+
+    asked = dict(given)
+    if board:
+        asked["board"] = board
+    if intrinsics is not None:
+        asked["intrinsics"] = str(intrinsics)
+    if calibrate:
+        asked["calibrate_intrinsics"] = True
+    if not asked:
+        return {}
+    if method.startswith("flange"):
+        raise UsageError(
+            f"{', '.join(sorted(asked))}: used only by the board methods, not --method {method}",
+            "pass --method park (or tsai, horaud, andreff, daniilidis, shah, li) for board photos, "
+            "or drop them",
+        )
+    out: dict = {}
+    b = asked.get("board")
+    if isinstance(b, str):
+        parts = b.split(":")
+        if len(parts) == 2 and parts[0] == "chessboard" and (layout_board or {}).get("square"):
+            b = f"{b}:{layout_board['square'] * 1e3:g}"  # the square the data folder gives
+        spec = BoardSpec.parse(b)
+    elif isinstance(b, dict):
+        spec = BoardSpec.from_dict(b, "--settings board")
+    elif b is None:
+        raise UsageError(
+            "board photos need the board", "pass --board, e.g. chessboard:9x6:25 (inner corners, mm)"
+        )
+    else:
+        raise UsageError(
+            f"--settings board is {type(b).__name__}", "give a table (kind, squares_x, ...) or a text"
+        )
+    out["board"] = spec
+    if asked.get("intrinsics"):
+        out["intrinsics"] = read_intrinsics(Path(asked["intrinsics"]))
+    out["calibrate_intrinsics"] = bool(asked.get("calibrate_intrinsics"))
+    return out
 
 
 _PROFILE_KEYS = (
@@ -185,6 +267,7 @@ def _cli_fix(e: DataError) -> DataError:
     """The library's fixes speak Python; say the command-line option instead."""
     fix = (e.fix or "").replace("pass allow_coplanar=True", "pass --allow-coplanar")
     fix = fix.replace("declare units 'mm'", "pass --units mm")
+    fix = fix.replace("declare units 'm'", "pass --units m")
     return DataError(e.message, fix)
 
 
@@ -205,8 +288,7 @@ def calibrate_group() -> None:
 )
 @click.option(
     "--method",
-    default="flange",
-    show_default=True,
+    default=None,
     type=click.Choice(
         [
             "flange",
@@ -221,7 +303,7 @@ def calibrate_group() -> None:
             "li",
         ]
     ),
-    help="Solver (flange* = paper 003).",
+    help="Solver (flange* = paper 003; default: flange, or park for board photos).",
 )
 @click.option(
     "--config",
@@ -235,7 +317,19 @@ def calibrate_group() -> None:
 @click.option(
     "--layout", type=click.Choice(LAYOUTS), default="auto", show_default=True, help="Force a data layout."
 )
-@click.option("--flange-model", type=click.Path(path_type=Path), help="Flange CAD/cloud for the ICP metric.")
+@click.option(
+    "--quaternion",
+    type=click.Choice(["auto", "xyzw", "wxyz"]),
+    default="auto",
+    show_default=True,
+    help="Quaternion order of a data.txt layout (auto: the one under which the flange faces the camera).",
+)
+@click.option(
+    "--flange-model",
+    type=click.Path(path_type=Path),
+    help="Flange CAD (STL) or cloud (PCD/PLY) for the ICP metric; NaN points, units (mm/m) and its frame "
+    "are cleaned, a model that cannot work is refused.",
+)
 @click.option(
     "--flange-d1",
     type=click.Choice(["31.5", "40", "50", "63", "80", "100"]),
@@ -260,7 +354,26 @@ def calibrate_group() -> None:
     "--settings",
     "settings_file",
     type=click.Path(path_type=Path),
-    help="TOML/JSON with handeye.flange settings (or a profile: its [stages.handeye.settings]).",
+    help="TOML/JSON with handeye.flange settings and, for board photos, board / intrinsics / "
+    "calibrate_intrinsics (or a profile: its [stages.handeye.settings]); unknown keys are refused.",
+)
+@click.option(
+    "--board",
+    "board_spec",
+    help="Board of the photos (lengths in mm): chessboard:9x6:25 (inner corners, square), "
+    "charuco:5x7:40:20[:DICT_6X6_250] (squares, square, marker), aruco-grid:5x7:40:10[:DICT] (markers, "
+    "marker, separation).",
+)
+@click.option(
+    "--intrinsics",
+    type=click.Path(path_type=Path),
+    help="Camera intrinsics of the photos: OpenCV YAML/XML/JSON (camera_matrix, distortion_coefficients) "
+    "or JSON with K (or fx, fy, cx, cy) and dist.",
+)
+@click.option(
+    "--calibrate-intrinsics",
+    is_flag=True,
+    help="No intrinsics file: calibrate the camera from the same board photos (Zhang, cv2.calibrateCamera).",
 )
 @click.option("--report", "report_dir", type=click.Path(path_type=Path), help="Write summary and plots here.")
 @click.option(
@@ -276,6 +389,7 @@ def hand_eye(
     config: str | None,
     units: str | None,
     layout: str,
+    quaternion: str,
     flange_model: Path | None,
     flange_d1: str | None,
     verifier: str | None,
@@ -285,12 +399,16 @@ def hand_eye(
     inlier_threshold: float | None,
     allow_coplanar: bool,
     settings_file: Path | None,
+    board_spec: str | None,
+    intrinsics: Path | None,
+    calibrate_intrinsics: bool,
     report_dir: Path | None,
     remeasure: bool,
     quiet: bool,
 ) -> None:
     """Hand-eye calibration of DATA_DIR; writes the transform to -o and prints a summary."""
     from weldcell.plugins.handeye.report import summary_lines, write_offline_report
+    from weldcell.plugins.handeye.result import sample_id
     from weldcell.plugins.handeye.samples_io import write_result
     from weldcell.plugins.handeye.stages import FlangeHandEye
     from weldcell.sdk.cli import out
@@ -301,7 +419,7 @@ def hand_eye(
         from weldcell.sdk.cloudfile import check_cloud_file
 
         check_cloud_file(flange_model)  # header and body checked before anything is computed
-    s = _stage_settings(
+    s, board_given = _stage_settings(
         settings_file,
         {
             "flange_model": str(flange_model) if flange_model else None,
@@ -313,10 +431,17 @@ def hand_eye(
     )
     stage = FlangeHandEye(s)
     try:
-        ss = read_data(data_dir, layout, units)
+        ss = read_data(data_dir, layout, units, quaternion)
     except DataError as e:
         raise _cli_fix(e) from None
     notes = list(ss.notes)
+    method = method or _default_method(ss)
+    try:
+        extra: dict = board_settings(
+            method, board_given, board_spec, intrinsics, calibrate_intrinsics, ss.board
+        )
+    except DataError as e:
+        raise _cli_fix(e) from None
     if remeasure:
         n = sum(smp.cloud is not None for smp in ss.samples)
         if n == 0:
@@ -337,7 +462,6 @@ def hand_eye(
             verification = _verification_sample(ss, stage, verify_sample)
             notes.append(f"sample {verification[2]} is the ICP verification scan (left out of the fit)")
             verification = verification[:2]
-        extra: dict = {}
         f = _feature(feature)
         if f is not None:
             extra["feature"] = f
@@ -349,8 +473,11 @@ def hand_eye(
         )
     except DataError as e:
         raise _cli_fix(e) from None
+    if verification is not None and s.flange_model:
+        notes += _model_notes(stage.flange_model, result)
     result.warnings += [f"skipped {n}" for n in notes if n.startswith("scan ")]
     result.metrics["sample_index"] = [int(smp.meta.get("index", i)) for i, smp in enumerate(ss.samples)]
+    result.metrics["sample_ids"] = [sample_id(smp, i) for i, smp in enumerate(ss.samples)]
     result.metrics["source"] = {
         "data": str(data_dir),
         "layout": layout if layout != "auto" else detect_layout(data_dir),
@@ -365,6 +492,26 @@ def hand_eye(
     if not quiet:
         out.print("\n".join(lines), markup=False)
     out.print(f"wrote {output}", markup=False)
+
+
+def _default_method(ss) -> str:
+    """flange for scans and flange centres; park for board photos or board poses."""
+    boards = any(x.image is not None or x.T_cam_target is not None for x in ss.samples)
+    flange = any(x.cloud is not None or x.p_cam is not None for x in ss.samples)
+    return "park" if boards and not flange else "flange"
+
+
+def _model_notes(fm, result) -> list[str]:
+    """What cleaning the flange model did (notes), its warnings into the result, its report in metrics."""
+    r = fm.report
+    result.metrics["flange_model"] = r
+    result.warnings += fm.warnings
+    notes = [f"flange model read as {r['units']}: {r['diameter_mm']} mm across, {r['points_out']} points"]
+    if r.get("nonfinite_dropped"):
+        notes.append(f"flange model: {r['nonfinite_dropped']} NaN/inf points of {r['points_in']} dropped")
+    if r.get("moved"):
+        notes.append(r["moved"])
+    return notes
 
 
 def _write_report(report_dir: Path, result, lines: list[str], writer) -> list[str]:
@@ -405,4 +552,6 @@ def _verification_sample(ss, stage, index: int | None):
         else read_cloud(smp.cloud, units=smp.meta.get("cloud_units", "m"), frame="camera").points
     )
     m = stage.measure(pts, seed=index)
-    return m.face, smp.T_base_flange, int(smp.meta.get("index", index))
+    from weldcell.plugins.handeye.result import sample_id
+
+    return m.face, smp.T_base_flange, sample_id(smp, index)

@@ -21,9 +21,15 @@ def check_finite(name: str, arr: np.ndarray) -> None:
         )
 
 
+#: nothing a cell records sits within 1 cm of its frame's origin on median (a camera's minimum range, a
+#: flange never at the robot base's origin): below it, metres were read as millimetres
+MIN_MEDIAN_DISTANCE = 0.01
+
+
 def check_units(name: str, points: np.ndarray, units: str = "m", max_range: float = 20.0) -> None:
-    """Refuse points that cannot be metres (a camera or robot coordinate beyond ``max_range`` m), and
-    columns where some samples are ~1000x the others (a mm/m mix within one data set)."""
+    """Refuse points that cannot be metres, both ways: a camera or robot coordinate beyond ``max_range``
+    m (millimetres read as metres), a median distance from the origin under 1 cm (metres read as
+    millimetres), and columns where some samples are ~1000x the others (a mm/m mix in one data set)."""
     P = np.asarray(points, float).reshape(-1, 3)
     norms = np.linalg.norm(P, axis=1)
     if units == "m" and np.any(norms > max_range):
@@ -38,6 +44,13 @@ def check_units(name: str, points: np.ndarray, units: str = "m", max_range: floa
             "convert those samples to metres (divide by 1000) or re-export them in one unit",
         )
     med = float(np.median(norms)) if len(norms) else 0.0
+    if units == "m" and 0 < med < MIN_MEDIAN_DISTANCE:
+        raise DataError(
+            f"{name} lie within {med * 1e3:.3g} mm of the origin on median (span "
+            f"{np.ptp(P, axis=0).max() * 1e3:.3g} mm): the values look like metres read as millimetres, a "
+            "unit problem before a motion problem",
+            "declare units 'm' (the values are already metres)",
+        )
     if med > 0:
         ratio = norms / med
         odd = np.flatnonzero((ratio > 100) | (ratio < 0.01))
@@ -167,3 +180,130 @@ def bootstrap(
         "t_std_norm": float(np.sqrt(np.sum(np.var(t, axis=0)))),
         "rot_std": float(np.sqrt(np.mean(ang**2))),
     }
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def point_fit_covariance(src: np.ndarray, dst: np.ndarray, T: np.ndarray) -> dict:
+    """First-order covariance of a rigid point fit ``dst ≈ T src`` (eqs. 10-12) from its own residuals.
+
+    With ``y_i = T src_i``, centroid ``ȳ`` and ``q_i = y_i - ȳ``, a small rotation δθ and a shift δc
+    of the centroid move ``y_i`` by ``δθ × q_i + δc``; with isotropic noise σ (estimated as
+    ``Σ|r|² / (3n - 6)``) the information is ``Σ(|q|² I - q qᵀ) / σ²`` for δθ and ``n / σ²`` for δc
+    (uncorrelated because Σq = 0). The translation of ``T`` (the camera origin) sits at lever arm
+    ``d = t - ȳ``: ``Cov(t) = [d]× Cov(θ) [d]×ᵀ + σ²/n I``. Unlike a bootstrap this stays honest for
+    few or coplanar/clustered samples, where resamples that miss the one off-line sample are
+    degenerate. Returns std of t (m, per axis and norm), rotation std (rad, RMS angle), σ, dof and the
+    least-determined rotation axis (base frame) with its std."""
+    src = np.asarray(src, float).reshape(-1, 3)
+    dst = np.asarray(dst, float).reshape(-1, 3)
+    n = len(src)
+    dof = 3 * n - 6
+    if n < 3 or dof <= 0:
+        return {"n": n}
+    y = src @ T[:3, :3].T + T[:3, 3]
+    r = y - dst
+    s2 = float(np.sum(r**2) / dof)
+    q = y - y.mean(0)
+    A = np.sum(np.einsum("ni,ni->n", q, q)) * np.eye(3) - q.T @ q
+    if np.linalg.cond(A) > 1e12:
+        return {"n": n, "sigma": float(np.sqrt(s2)), "degenerate": True}
+    C_rot = s2 * np.linalg.inv(A)
+    D = _skew(T[:3, 3] - y.mean(0))
+    C_t = D @ C_rot @ D.T + s2 / n * np.eye(3)
+    w, V = np.linalg.eigh(C_rot)
+    return {
+        "n": n,
+        "sigma": float(np.sqrt(s2)),
+        "dof": dof,
+        "t_std": np.sqrt(np.diag(C_t)).tolist(),
+        "t_std_norm": float(np.sqrt(np.trace(C_t))),
+        "rot_std": float(np.sqrt(np.trace(C_rot))),
+        "weak_axis": V[:, -1].tolist(),
+        "weak_rot_std": float(np.sqrt(w[-1])),
+    }
+
+
+def leave_one_out(fit: Callable[[np.ndarray], np.ndarray], T: np.ndarray, n: int) -> list[float | None]:
+    """How far the camera origin moves (m) when each sample is left out: ``fit(indices)`` on the other
+    n-1; None where that fit fails (the rest is degenerate)."""
+    out: list[float | None] = []
+    for i in range(n):
+        try:
+            Ti = fit(np.r_[0:i, i + 1 : n])
+            out.append(float(np.linalg.norm(Ti[:3, 3] - T[:3, 3])))
+        except Exception:  # noqa: BLE001 - a degenerate subset has no fit
+            out.append(None)
+    return out
+
+
+#: below this many samples, or with a spread ratio under these, a bootstrap is not trusted
+BOOTSTRAP_MIN_SAMPLES = 15
+BOOTSTRAP_MIN_PLANARITY = 0.05
+BOOTSTRAP_MIN_LINEARITY = 0.2
+
+
+def point_confidence(
+    src: np.ndarray,
+    dst: np.ndarray,
+    T: np.ndarray,
+    fit: Callable[[np.ndarray], np.ndarray],
+    n_boot: int = 100,
+    rng: np.random.Generator | int | None = 0,
+) -> dict:
+    """The confidence of a point fit: the analytic covariance (:func:`point_fit_covariance`) always,
+    the leave-one-out shifts, and a bootstrap only where it is meaningful (at least
+    :data:`BOOTSTRAP_MIN_SAMPLES` samples spread in 3-D). ``method`` says which one the summary
+    quotes and ``why``; ``bootstrap`` is kept when it ran."""
+    dst = np.asarray(dst, float).reshape(-1, 3)
+    n = len(dst)
+    out = {"analytic": point_fit_covariance(src, dst, T), "leave_one_out_m": leave_one_out(fit, T, n)}
+    sp = point_spread(dst)
+    reasons = []
+    if n < BOOTSTRAP_MIN_SAMPLES:
+        reasons.append(f"{n} samples")
+    if sp["planarity"] < BOOTSTRAP_MIN_PLANARITY:
+        reasons.append(f"coplanar (thickness/extent {sp['planarity']:.3f})")
+    if sp["linearity"] < BOOTSTRAP_MIN_LINEARITY:
+        reasons.append(f"clustered near a line (spread ratio {sp['linearity']:.3f})")
+    if n_boot and not reasons:
+        out["bootstrap"] = bootstrap(fit, n, n_boot, rng)
+    use_boot = "t_std" in out.get("bootstrap", {}) and "t_std" in out["analytic"]
+    if use_boot:  # the larger of the two: the bootstrap also sees non-Gaussian noise
+        use_boot = out["bootstrap"]["t_std_norm"] >= out["analytic"]["t_std_norm"]
+    out["method"] = "bootstrap" if use_boot else "analytic"
+    out["why"] = (
+        "bootstrap over well-spread samples"
+        if use_boot
+        else "first-order covariance from the residuals"
+        + (f" (bootstrap unreliable: {', '.join(reasons)})" if reasons else "")
+    )
+    return out
+
+
+def spread_back(values: list, idx_in: np.ndarray, n_samples: int, keep: list[int]) -> list:
+    """Per-inlier values put back at their sample positions (None elsewhere)."""
+    out: list = [None] * n_samples
+    for j, v in zip(idx_in, values, strict=True):
+        out[keep[j]] = v
+    return out
+
+
+def influence_warnings(conf: dict, ids: list[str]) -> list[str]:
+    """A warning when leaving one sample out moves the camera by more than 3 sigma of the analytic
+    confidence: the answer rests on that sample alone (e.g. the only pose off a line)."""
+    a = conf.get("analytic", {})
+    loo = conf.get("leave_one_out_m", [])
+    if "t_std_norm" not in a:
+        return []
+    big = [(i, v) for i, v in enumerate(loo) if v is None or v > max(3 * a["t_std_norm"], 1e-3)]
+    if not big:
+        return []
+    i, v = max(big, key=lambda p: np.inf if p[1] is None else p[1])
+    moved = "leaves a degenerate set" if v is None else f"moves the camera by {v * 1e3:.1f} mm"
+    return [
+        f"the result rests on few samples: leaving out sample {ids[i]} {moved} "
+        f"(1 sigma {a['t_std_norm'] * 1e3:.2f} mm); add poses away from the others"
+    ]

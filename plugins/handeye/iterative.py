@@ -12,6 +12,7 @@ verifier (the consensus one with few pairs seen) can accept them.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -43,6 +44,7 @@ class PoolResult:
     converged: bool
     H_compensated: np.ndarray | None = None
     events: list[str] = field(default_factory=list)
+    timed_out: bool = False
     H_refit: np.ndarray | None = None
     refit_inliers: list[int] | None = None
     n_verified: int = 0
@@ -173,6 +175,7 @@ def iterative_pool(
     search: Literal["published", "wide"] = "published",
     budget: int = 64,
     seed: int | np.random.Generator | None = 0,
+    time_limit: float | None = None,
 ) -> PoolResult:
     """Run Algorithm 1 over pairs ``src[i] -> dst[i]`` in the order given (the collection order).
 
@@ -198,6 +201,9 @@ def iterative_pool(
     are refitted together by eqs. 10-12 (``H_refit``), twice. The pool then acts as a RANSAC
     hypothesis chosen by the verifier, and the final transform averages the noise of all consistent
     pairs instead of four (§3.1 study in docs/methods/hand-eye.md).
+
+    ``time_limit`` (s): no new pair is taken once this much time has passed (``timed_out``; the pool
+    found so far is returned), so a slow verifier cannot hold a run indefinitely.
     """
     src = np.asarray(src, float).reshape(-1, 3)
     dst = np.asarray(dst, float).reshape(-1, 3)
@@ -211,7 +217,12 @@ def iterative_pool(
     k = 0
     nxt = pool_size
     events: list[str] = []
+    t0, timed_out = time.monotonic(), False
     while best.cost > e_required and k <= k_max and nxt < n:
+        if time_limit is not None and time.monotonic() - t0 > time_limit:
+            timed_out = True
+            events.append(f"time limit {time_limit:g} s reached after {nxt} pairs")
+            break
         if verifier_sees_count and np.isfinite(best.cost):
             pub = sc.rescore(pub, nxt + 1)
             best = pub if best.pool == pub.pool else sc.rescore(best, nxt + 1)
@@ -238,6 +249,7 @@ def iterative_pool(
         converged=bool(best.cost <= e_required),
         H_compensated=None if best.e is None else compensate(best.H, best.e),
         events=events,
+        timed_out=timed_out,
         H_refit=H_refit,
         refit_inliers=refit_idx,
         n_verified=sc.calls,

@@ -22,7 +22,7 @@ from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 from weldcell.plugins.handeye.featurefit import fit_with_unknown_point, rotation_diversity, translation_sigma
 from weldcell.plugins.handeye.pointfit import scaled_svd_fit
-from weldcell.plugins.handeye.result import HandEyeSample
+from weldcell.plugins.handeye.result import HandEyeSample, finite_json
 from weldcell.plugins.handeye.samples_io import write_result, write_samples
 from weldcell.plugins.handeye.stages import predicted_p_cam
 from weldcell.sdk.cloud import PointCloud, read_cloud, write_cloud
@@ -578,6 +578,11 @@ def run(ctx) -> dict:
         "cost_history_m": [t["cost"] for t in track],
     }
     result.metrics["sample_index"] = index
+    if isinstance(tracker, _PoolTracker) and tracker.H is not None and not np.isfinite(tracker.cost):
+        result.warnings.append(
+            "online Algorithm 1 never verified a pool (eq. 13 cost +inf at every pair): the flange model "
+            "does not match the verification scan; the result is the offline solve's"
+        )
     result.warnings += [f"skipped {n}" for n in notes]
     write_result(ctx.path("handeye.json"), result)
     write_samples(ctx.path("samples.json"), samples, config, feature_base=extra.get("feature_base"))
@@ -596,4 +601,4 @@ def run(ctx) -> dict:
     if ctx.profile.output.report:
         with ctx.step("report"):
             write_report(ctx, result, track, notes, truth, stop)
-    return figures
+    return finite_json(figures)  # result.json: strict JSON (a NaN/inf becomes null with its reason)

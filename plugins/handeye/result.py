@@ -36,6 +36,38 @@ def config_name(config: str) -> str:
     return c
 
 
+#: why a value is not a finite number, by the key it sits under (the JSON gets ``null`` and this reason)
+NULL_REASONS = {
+    "residuals_m": "NaN: no flange centre (or board pose) for this sample, so no residual",
+    "cost": "+inf: the eq. 13 verifier found no pool it could verify (ICP did not converge)",
+    "cost_history": "+inf: no verified 4-pair pool yet after this many pairs (first three pairs, or the "
+    "verifier failed)",
+    "mean_all_m": "NaN: no sample has a residual",
+}
+
+
+def finite_json(doc: dict) -> dict:
+    """``doc`` with every non-finite float replaced by ``null`` (strict JSON has no NaN/Infinity) and a
+    top-level ``"nulls"`` map: JSON path of each replaced value (lists collapsed to ``[]``) -> why."""
+    reasons: dict[str, str] = {}
+
+    def walk(v, path: str, key: str):
+        if isinstance(v, dict):
+            return {k: walk(x, f"{path}.{k}" if path else str(k), str(k)) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [walk(x, f"{path}[]", key) for x in v]
+        if isinstance(v, float | np.floating) and not np.isfinite(v):
+            kind = "NaN" if np.isnan(v) else ("+inf" if v > 0 else "-inf")
+            reasons.setdefault(path, NULL_REASONS.get(key, f"{kind}: not a finite number"))
+            return None
+        return v
+
+    out = walk({k: v for k, v in doc.items() if k != "nulls"}, "", "")
+    if reasons:
+        out["nulls"] = {**doc.get("nulls", {}), **reasons}
+    return out
+
+
 @dataclass
 class HandEyeSample:
     """One robot pose with what the camera saw. Units: metres.
@@ -57,6 +89,13 @@ class HandEyeSample:
     T_base2_flange2: np.ndarray | None = None
     phase: str | None = None
     meta: dict = field(default_factory=dict)
+
+
+def sample_id(sample: HandEyeSample, i: int) -> str:
+    """The user's name of a sample: its ``meta["id"]`` (a file stem such as ``01`` or a timestamp),
+    else its index in the file."""
+    v = sample.meta.get("id")
+    return str(v) if v not in (None, "") else str(sample.meta.get("index", i))
 
 
 @dataclass
@@ -96,7 +135,7 @@ class HandEyeResult:
                 return v.item()
             return v
 
-        return {
+        doc = {
             "schema": SCHEMA,
             "config": self.config,
             "transform": self.name,
@@ -113,6 +152,7 @@ class HandEyeResult:
             "extra": conv(self.extra),
             "warnings": list(self.warnings),
         }
+        return finite_json(doc)
 
     @classmethod
     def from_json(cls, doc: dict, where: str = "hand-eye result") -> HandEyeResult:

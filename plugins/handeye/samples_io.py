@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from weldcell.plugins.handeye.diagnostics import check_units
-from weldcell.plugins.handeye.result import HandEyeResult, HandEyeSample, config_name
+from weldcell.plugins.handeye.result import HandEyeResult, HandEyeSample, config_name, finite_json
 from weldcell.sdk.artifacts import write_json
 from weldcell.sdk.cloud import UNIT_SCALE
 from weldcell.sdk.datafile import (
@@ -49,9 +49,10 @@ class SampleSet:
     root: Path | None = None
     notes: list[str] = field(default_factory=list)
     feature_base: str | list[float] | None = None  # the file's "feature_base" (metres), if it gives one
+    board: dict | None = None  # what the layout says of the board (e.g. {"square": 0.02} in metres)
 
 
-_SAMPLE_KEYS = (*_POSE_KEYS, *_POINT_KEYS, "cloud", "image", "normal", "cloud_units", "phase")
+_SAMPLE_KEYS = (*_POSE_KEYS, *_POINT_KEYS, "cloud", "image", "normal", "cloud_units", "phase", "id")
 _DOC_KEYS = ("schema", "config", "units", "samples", "feature_base")
 _POSE_FIX = "write the pose as 4 rows of 4 numbers (row-major 4x4, last row 0 0 0 1)"
 
@@ -100,6 +101,10 @@ def _read_sample(s, i: int, path: Path, units: str) -> HandEyeSample:
     kw["meta"]["cloud_units"] = _units(s.get("cloud_units", units), f"{where} cloud_units")
     if s.get("phase"):
         kw["phase"] = str(s["phase"])
+    if s.get("id") not in (None, ""):
+        kw["meta"]["id"] = str(s["id"])
+    elif isinstance(kw.get("cloud") or kw.get("image"), str):
+        kw["meta"]["id"] = Path(kw.get("cloud") or kw.get("image")).stem
     return HandEyeSample(**kw)
 
 
@@ -202,6 +207,8 @@ def write_samples(
                     row[k] = str(p)
         if s.phase:
             row["phase"] = s.phase
+        if s.meta.get("id") not in (None, ""):
+            row["id"] = str(s.meta["id"])
         if s.meta.get("normal") is not None:
             row["normal"] = np.asarray(s.meta["normal"], float).tolist()
         rows.append(row)
@@ -209,7 +216,7 @@ def write_samples(
     if feature_base is not None:
         fb = feature_base
         doc["feature_base"] = fb if isinstance(fb, str) else [float(v) for v in fb]
-    return write_json(path, {**doc, "samples": rows})
+    return write_json(path, finite_json({**doc, "samples": rows}))
 
 
 def write_result(path: str | Path, result: HandEyeResult) -> Path:
@@ -230,7 +237,7 @@ def _guess_length_units(values: np.ndarray, what: str) -> str:
         return "m"
     raise DataError(
         f"cannot tell whether {what} is in m or mm (median distance {med:.3g})",
-        "convert it to metres before reading",
+        "say which: pass --units m or --units mm (or convert to metres before reading)",
     )
 
 
@@ -281,15 +288,23 @@ def read_ancorasir_sample(folder: str | Path) -> SampleSet:
                 p_cam=p_cam[i],
                 p_base=p_rob[i],
                 cloud=str(clouds[i]) if clouds else None,
-                meta={"key": k, "cloud_units": "mm", "source": str(folder)},
+                meta={
+                    "key": k,
+                    "index": i,
+                    "id": clouds[i].name.split("_")[0] if clouds else str(k),
+                    "cloud_units": "mm",
+                    "source": str(folder),
+                },
             )
         )
     return SampleSet("eye-on-base", samples, folder, notes)
 
 
-def read_ancorasir_point_pairs(folder: str | Path, units: str = "mm") -> SampleSet:
+def read_ancorasir_point_pairs(folder: str | Path, units: str = "auto") -> SampleSet:
     """``paper_dda5a35/data/<robot>/`` point pairs: ``p_camera_mat.npy`` and ``p_robot_mat.npy``
-    (3 x N, millimetres). Only positions: samples carry ``p_cam`` and ``p_base``."""
+    (3 x N, millimetres in the authors' files). Only positions: samples carry ``p_cam`` and ``p_base``.
+    ``units`` "auto" tells mm from m by the distances (a camera sees the flange 0.2-5 m away); given
+    units that do not fit are refused by the unit checks of :func:`calibrate`."""
     folder = Path(folder)
     pc, pr = _load_npy(folder / "p_camera_mat.npy"), _load_npy(folder / "p_robot_mat.npy")
     if pc.ndim != 2 or pr.ndim != 2 or 3 not in pc.shape:
@@ -300,12 +315,18 @@ def read_ancorasir_point_pairs(folder: str | Path, units: str = "mm") -> SampleS
         raise DataError(
             f"{folder}: {pc.shape} camera points but {pr.shape} robot points", "the files do not match"
         )
+    notes = []
+    if units == "auto":
+        units = _guess_length_units(np.vstack([pc, pr]), "the point pairs")
+        notes.append(f"point pairs read as {units} (from their size; --units overrides)")
+    else:
+        notes.append(f"point pairs read as {units}")
     s = UNIT_SCALE[units]
     samples = [
         HandEyeSample(p_cam=a * s, p_base=b * s, meta={"index": i})
         for i, (a, b) in enumerate(zip(pc, pr, strict=True))
     ]
-    return SampleSet("eye-on-base", samples, folder, [f"point pairs read as {units}"])
+    return SampleSet("eye-on-base", samples, folder, notes)
 
 
 def read_ancorasir_kinect(folder: str | Path) -> SampleSet:

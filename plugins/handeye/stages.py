@@ -20,7 +20,7 @@ import numpy as np
 from pydantic import Field
 from weldcell.plugins.handeye.calibrate import calibrate
 from weldcell.plugins.handeye.circle import ransac_circle
-from weldcell.plugins.handeye.flange_model import ISO9409_1, iso9409_model, load_flange_model
+from weldcell.plugins.handeye.flange_model import ISO9409_1, FlangeModel, iso9409_model, load_clean_model
 from weldcell.plugins.handeye.pointfit import rigid_fit_batch
 from weldcell.plugins.handeye.result import HandEyeResult, HandEyeSample
 from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
@@ -55,7 +55,9 @@ class FlangeSettings(Settings):
         description="flange CAD (STL) or cloud (PCD/PLY) for the ICP metric; "
         "default: the ISO 9409-1 plate of flange_d1",
     )
-    flange_model_units: Literal["mm", "m"] = Field("mm", description="units of flange_model")
+    flange_model_units: Literal["auto", "mm", "m"] = Field(
+        "auto", description="units of flange_model ('auto': from its size, a flange is 20-400 mm across)"
+    )
     # segmentation (§2.1.4)
     box_min: Vec3 | None = Field(None, description="pass-through box, lower corner, camera frame [m]")
     box_max: Vec3 | None = Field(None, description="pass-through box, upper corner, camera frame [m]")
@@ -115,6 +117,9 @@ class FlangeSettings(Settings):
     )
     pool_budget: int = Field(64, gt=0, description="'wide' pool search: 4-subsets tried per new pair")
     compensate: bool = Field(False, description="apply eq. 21 (H @ e_optimal) to Algorithm 1's result")
+    pool_time_limit: float | None = Field(
+        60.0, gt=0, description="Algorithm 1 takes no new pair after this many seconds (bounded run time) [s]"
+    )
 
 
 @dataclass
@@ -224,11 +229,17 @@ class FlangeHandEye:
         return self.s.radius if self.s.radius is not None else self.d3 / 2 - 0.0005
 
     @cached_property
+    def flange_model(self) -> FlangeModel:
+        """The flange model for the ICP metric (eq. 13): the file cleaned (:func:`clean_flange_model`,
+        its diameter checked against flange_d1's d3) or the ISO 9409-1 plate."""
+        if self.s.flange_model:
+            return load_clean_model(self.s.flange_model, self.s.flange_model_units, expected_diameter=self.d3)
+        return FlangeModel(iso9409_model(float(self.s.flange_d1), spacing=0.001, rim_depth=0.002))
+
+    @property
     def model(self) -> np.ndarray:
         """Flange model points (flange frame, m) for the ICP metric (eq. 13)."""
-        if self.s.flange_model:
-            return load_flange_model(self.s.flange_model, units=self.s.flange_model_units)
-        return iso9409_model(float(self.s.flange_d1), spacing=0.001, rim_depth=0.002)
+        return self.flange_model.points
 
     def segment_settings(self) -> SegmentSettings:
         return SegmentSettings(
@@ -346,7 +357,7 @@ class FlangeHandEye:
         ang = theta[0] + ((lo + hi) / 2) * np.radians(step_deg)
         x = np.cos(ang) * u + np.sin(ang) * v
         T0 = frame_from_axes(x, z, m.p_cam)
-        face_model = self.model[np.abs(self.model[:, 2]) < 1e-9]
+        face_model = self.model[self.model[:, 2] > -0.0003]  # the face (a CAD model's is voxel-thinned)
         reg = o3d.pipelines.registration.registration_icp(
             o3d.geometry.PointCloud(o3d.utility.Vector3dVector(face_model)),
             o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face)),
@@ -387,6 +398,7 @@ class FlangeHandEye:
             "search": self.s.pool_search,
             "budget": self.s.pool_budget,
             "compensate": self.s.compensate,
+            "time_limit": self.s.pool_time_limit,
             "bootstrap": self.s.bootstrap,
         }
 

@@ -79,11 +79,31 @@ class IcpVerifier:
     max_rmse: float = 0.002
     iterations: int = 50
 
+    voxel: float = 0.0  # > 0: thin the verification scan to this voxel (m) first
+
     def __post_init__(self) -> None:
         import open3d as o3d
 
-        self._target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(self.cloud_v, float)))
-        self._model = np.asarray(self.model, float)
+        cloud = np.asarray(self.cloud_v, float).reshape(-1, 3)
+        cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+        self._target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+        if self.voxel:  # the model is already thinned (clean_flange_model); the scan builds one KD-tree
+            self._target = self._target.voxel_down_sample(self.voxel)
+        model = np.asarray(self.model, float).reshape(-1, 3)
+        self._model = model[np.all(np.isfinite(model), axis=1)]
+        self.calls = 0
+        self.failures = 0
+        self.best: dict = {}
+
+    def diagnosis(self) -> str:
+        """Why ICP failed, from the best attempt: fitness (share of model points matched) and RMSE."""
+        b = self.best
+        if not b:
+            return "never called"
+        return (
+            f"best fitness {b['fitness']:.2f} (needs {self.min_fitness}), RMSE {b['rmse'] * 1e3:.2f} mm "
+            f"(needs <= {self.max_rmse * 1e3:.1f} mm) over {self.calls} tries"
+        )
 
     def __call__(self, H: np.ndarray) -> np.ndarray | None:
         import open3d as o3d
@@ -98,7 +118,11 @@ class IcpVerifier:
             o3d.pipelines.registration.TransformationEstimationPointToPoint(),
             o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.iterations),
         )
+        self.calls += 1
+        if not self.best or reg.fitness > self.best["fitness"]:
+            self.best = {"fitness": float(reg.fitness), "rmse": float(reg.inlier_rmse)}
         if reg.fitness < self.min_fitness or reg.inlier_rmse > self.max_rmse:
+            self.failures += 1
             return None
         E = np.asarray(reg.transformation)  # T_cam_cam' (moves the predicted model onto the measurement)
         return invert(E)  # H_true = H @ inv(E), so e = inv(E) (eq. 21)

@@ -6,7 +6,7 @@ Registers the stages ``edges.step-kernel`` and ``localize.template-fit`` and the
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
+from weldcell.sdk.descriptors import BatchSpec, CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
 from weldcell.sdk.hookspecs import hookimpl
 
 
@@ -50,6 +50,10 @@ def weldcell_register_commands(register) -> None:
             name="localize",
             command=cli.localize_command,
             summary="localize a workpiece from a laser scan against its CAD template",
+            # TEMPLATE is the same for every scan: weldcell batch localize SCANS... --args TEMPLATE
+            batch=(
+                BatchSpec(output="result.json", inputs="any", patterns=("*.csv",), markers=("state.json",)),
+            ),
         )
     )
 

@@ -4,8 +4,24 @@
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import CommandSpec
+from weldcell.sdk.descriptors import CommandSpec, StageSpec
 from weldcell.sdk.hookspecs import hookimpl
+
+
+@hookimpl
+def weldcell_register_stages(register) -> None:
+    from weldcell.plugins.map_transfer import stage
+
+    register(
+        StageSpec(
+            name="map-transfer.zmq",
+            kind="map-transfer",
+            summary="local maps in weldcell/map-segments@1 (Draco/PLY), served and fetched over ZeroMQ",
+            settings=stage.TransferSettings,
+            factory=stage.MapTransfer,
+            requires={"zmq": "transfer", "DracoPy": "transfer"},
+        )
+    )
 
 
 @hookimpl

@@ -210,8 +210,9 @@ class SegmentWriter:
     def _save(self) -> None:
         artifacts.write_json(self.root / MANIFEST, self.manifest)
 
-    def add(self, seg: Segment) -> dict:
-        """Encode and write one segment, then list it in the manifest; returns its manifest entry."""
+    def add(self, seg: Segment, extra: dict | None = None) -> dict:
+        """Encode and write one segment, then list it in the manifest; returns its manifest entry.
+        ``extra`` adds keys to the entry (e.g. the key frames' poses and the hand-over of a live map)."""
         s = self.settings
         data, quant = codec.encode(seg.points, seg.colors, s.encoding, s.max_error)
         name = f"seg_{seg.id:06d}.{'drc' if s.encoding == 'draco' else 'ply'}"
@@ -229,10 +230,29 @@ class SegmentWriter:
             "distance_m": seg.distance,
             "keyframes": seg.keyframes,
             "quantisation": None if quant is None else quant.to_json(),
+            **(extra or {}),
         }
         self.manifest["segments"].append(entry)
         self._save()
         return entry
+
+    def add_existing(self, src_root: str | Path, entry: dict, new_id: int | None = None) -> dict:
+        """List a segment of another folder unchanged: its file copied byte for byte (checked against its
+        sha256), its manifest entry kept (a new map version shares its unchanged segments bit-identically)."""
+        src = Path(src_root) / entry["file"]
+        data = src.read_bytes() if src.is_file() else b""
+        if _sha256(data) != entry["sha256"]:
+            raise DataError(
+                f"segment {entry['id']} ({src}) is missing or fails its sha256", "write the map again"
+            )
+        e = dict(entry)
+        if new_id is not None and new_id != e["id"]:
+            e["id"] = new_id
+            e["file"] = f"seg_{new_id:06d}{Path(entry['file']).suffix}"
+        artifacts.write_bytes(self.root / e["file"], data)
+        self.manifest["segments"].append(e)
+        self._save()
+        return e
 
     def finish(self) -> dict:
         """Mark the map complete."""

@@ -40,6 +40,14 @@ def weldcell_register_jobs(register) -> None:
                 DeviceRole("imu", "imu", "the IMU on the mobile base"),
                 DeviceRole("gnss", "gnss", "the GNSS receiver (optional)", optional=True),
             ),
-            stages=(StageRole("detector", "detector", "detector.sim", "find weld regions in key frames"),),
+            stages=(
+                StageRole("detector", "detector", "detector.sim", "find weld regions in key frames"),
+                StageRole(
+                    "transfer", "map-transfer", "map-transfer.zmq", "write, serve and fetch the local maps"
+                ),
+                StageRole(
+                    "relocalizer", "relocalizer", "relocalize.ndt", "relocalize a second visit on the map"
+                ),
+            ),
         )
     )

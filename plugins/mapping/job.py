@@ -43,6 +43,14 @@ class Tracking:
     truth_frames: list = field(default_factory=list)
     detections: list = field(default_factory=list)
     frame_seconds: list = field(default_factory=list)
+    segments: object | None = None
+    """The live local maps (:class:`~weldcell.plugins.mapping.live_map.LiveSegments`), when segmenting."""
+    record: bool = True
+    """Record key frames in the run's state (the first visit; ``--resume`` continues it)."""
+    mag: list = field(default_factory=list)
+    """(t, magnetic field (3,) in the IMU frame) during the start-up standstill (heading of the world)."""
+    end: float | None = None
+    """Simulated time at which the drive ends (default: the route's end)."""
 
 
 def _mount_T(ctx, role: str) -> tuple[str, np.ndarray]:
@@ -70,7 +78,7 @@ def make_rig(ctx) -> Rig:
     return Rig(cam, imu, gnss, T_imu_cam, T_imu_ant, site)
 
 
-def _feed_imu(ctx, rig: Rig, est: VioEstimator, t_frame: float) -> bool:
+def _feed_imu(ctx, rig: Rig, est: VioEstimator, t_frame: float, mag: list | None = None) -> bool:
     """Collect IMU samples until they cover ``t_frame``; False when the IMU stays silent."""
     s = ctx.settings
     deadline = time.monotonic() + s.imu_wait
@@ -89,6 +97,8 @@ def _feed_imu(ctx, rig: Rig, est: VioEstimator, t_frame: float) -> bool:
             sim = rig.site is not None
             t = np.array([r.device_stamp if sim and r.device_stamp is not None else r.stamp for r in got])
             est.add_imu(t, np.array([r.accel for r in got]), np.array([r.gyro for r in got]))
+            if mag is not None and not est.keyframes:  # the start-up standstill: the world's heading
+                mag += [(ti, r.mag) for ti, r in zip(t, got, strict=True) if r.mag is not None]
         if est.imu and est.imu[-1][0] >= t_frame:
             return True
         if time.monotonic() > deadline:
@@ -118,11 +128,12 @@ def drive_and_track(ctx, rig: Rig, tr: Tracking, detector, regions_truth) -> Non
     written to the store as they are made (nothing captured is lost on interruption)."""
     s = ctx.settings
     end = rig.site.route.duration if rig.site is not None else np.inf
+    end = min(end, tr.end) if tr.end is not None else end
     fps = 1.0 / float(getattr(rig.camera, "frame_time", 1 / 15))
     total = int(end * fps) if np.isfinite(end) else None
     with ctx.step("drive and track", total=total) as advance:
         while True:
-            if s.max_frames is not None and tr.frames >= s.max_frames:
+            if tr.record and s.max_frames is not None and tr.frames >= s.max_frames:
                 break
             if rig.site is not None and rig.site.world.clock.t > end:
                 break
@@ -133,7 +144,7 @@ def drive_and_track(ctx, rig: Rig, tr: Tracking, detector, regions_truth) -> Non
                     "the camera delivers no colour image", "enable colour (camera.sim: color = true)"
                 )
             t = _frame_time(frame)
-            imu_ok = _feed_imu(ctx, rig, tr.estimator, t)
+            imu_ok = _feed_imu(ctx, rig, tr.estimator, t, tr.mag)
             _feed_gnss(rig, tr.estimator)
             if not imu_ok and not tr.estimator.keyframes:
                 raise DeviceError(
@@ -160,9 +171,13 @@ def drive_and_track(ctx, rig: Rig, tr: Tracking, detector, regions_truth) -> Non
 def _on_keyframe(ctx, tr: Tracking, kf, frame, detector, regions_truth) -> None:
     T_cam = kf.T_world_imu @ tr.estimator.T_imu_cam
     tr.store.add(kf, T_cam)
+    if tr.segments is not None:  # §II-D: a new local map (and its hand-over) while driving
+        tr.segments.on_keyframe(kf)
     keep = ctx.settings.estimator.links + 1
     for old in tr.estimator.keyframes[:-keep]:  # images live in the store; memory stays bounded
         old.rgb = old.depth = None
+    if not tr.record:
+        return
     record = {"keyframe": kf.index, "t": kf.t, "file": f"map/keyframes/{kf.index:06d}.npz"}
     if detector is not None and kf.index % ctx.settings.detect_every == 0:
         dets = _detect(tr, frame, detector, regions_truth)
@@ -213,16 +228,71 @@ def run(ctx) -> dict:
         meta={"profile": ctx.profile.name, "site": "sim" if rig.site else "hardware"},
     )
     tr = Tracking(est, store)
+    live = None
+    if s.segmentation.enabled:  # §II-D: local maps while driving, served from the start (Table II)
+        from weldcell.plugins.mapping.live_map import LiveSegments
+
+        live = LiveSegments(ctx, tr, ctx.stage("transfer"), s.segmentation, ctx.path("map") / "", s.serve_map)
     finish.resume_if_any(ctx, rig, tr)
+    try:
+        if live is not None:
+            if tr.estimator.keyframes:
+                live.replay()
+            tr.segments = live
+        figures = _visit(ctx, rig, tr)
+        if live is not None:
+            figures.update(live.finish())
+    finally:
+        if live is not None:
+            live.close()
+    if live is not None and rig.site is not None:
+        from weldcell.plugins.mapping.seg_eval import evaluate_segmentation
+
+        figures.update(evaluate_segmentation(ctx, rig, tr, live.segmenter.segments))
+    figures["world_heading_rad"] = _world_heading(tr)
+    store.meta["magnetic_heading_rad"] = figures["world_heading_rad"]
+    store.meta["T_world_enu"] = None if est.T_world_enu is None else est.T_world_enu.tolist()
+    store.save_index()
+    if s.revisit.enabled:
+        from weldcell.plugins.mapping.visits import second_visit
+
+        figures.update(second_visit(ctx, rig, tr, figures))
+    if ctx.profile.output.report:
+        from weldcell.plugins.mapping.report import append_report
+
+        append_report(ctx, figures)
+    return figures
+
+
+def _visit(ctx, rig: Rig, tr: Tracking) -> dict:
+    from weldcell.plugins.mapping import finish
+
     detector = ctx.stage("detector") if "detector" in ctx.resolved["stages"] else None
     regions_truth = rig.site.weld_truth() if rig.site is not None else []
+    drive(ctx, rig, tr, detector, regions_truth)
+    return finish.finish(ctx, rig, tr)
+
+
+def drive(ctx, rig: Rig, tr: Tracking, detector=None, regions_truth=()) -> None:
+    """Stream the IMU (and GNSS) while the capture loop runs."""
     rig.imu.start_stream()
     if rig.gnss is not None:
         rig.gnss.start_stream()
     try:
-        drive_and_track(ctx, rig, tr, detector, regions_truth)
+        drive_and_track(ctx, rig, tr, detector, list(regions_truth))
     finally:
         rig.imu.stop_stream()
         if rig.gnss is not None:
             rig.gnss.stop_stream()
-    return finish.finish(ctx, rig, tr)
+
+
+def _world_heading(tr: Tracking) -> float | None:
+    """Heading of the map's world x axis from magnetic north's direction (rad, atan2 of the horizontal
+    field in the world), from the magnetometer during the start-up standstill; None without samples."""
+    est = tr.estimator
+    if not tr.mag or not est.keyframes:
+        return None
+    m = np.mean([v for _, v in tr.mag], axis=0)
+    R = est.keyframes[0].T_world_imu[:3, :3]
+    w = R @ m
+    return float(np.arctan2(w[1], w[0]))

@@ -64,6 +64,13 @@ class VoxelMap:
         q = np.floor(P / self.voxel).astype(np.int64) + (1 << 20)
         return (q[:, 0] << 42) | (q[:, 1] << 21) | q[:, 2]
 
+    def count_new(self, P: np.ndarray) -> int:
+        """How many voxels integrating ``P`` would add (the map's point count after it, minus now)."""
+        if len(P) == 0:
+            return 0
+        keys = np.unique(self._keys(P))
+        return int(sum(int(k) not in self._index for k in keys))
+
     def integrate(self, P: np.ndarray, colors: np.ndarray | None = None) -> None:
         if len(P) == 0:
             return

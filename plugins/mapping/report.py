@@ -84,3 +84,57 @@ def write_report(ctx, tr, rig, regions, figures: dict, A: np.ndarray | None) -> 
     lines += ["", "## Events", ""] + [f"- t={e['t']} s {e['kind']}: {e['message']}" for e in est.events]
     lines += ["", "![trajectory](trajectory.png)", "", "![map](map.png)", ""]
     artifacts.write_text(ctx.path("report/report.md"), "\n".join(lines))
+
+
+_SEG_KEYS = (
+    "segments",
+    "segment_handovers",
+    "first_segment_written_s",
+    "map_complete_s",
+    "fetch_ok",
+    "fetch_segments",
+    "fetch_first_segment_s",
+    "ate_unsegmented_m",
+    "ate_segmented_m",
+    "ate_segmentation_change_pct",
+    "ae_unsegmented_mm",
+    "ae_segmented_mm",
+    "ae_segmentation_change_pct",
+)
+
+
+def append_report(ctx, figures: dict) -> None:
+    """The local maps (§II-D, Table III) and the second visit (§II-E) appended to report.md."""
+    path = ctx.path("report/report.md")
+    text = path.read_text(encoding="utf-8") if path.is_file() else f"# Map run: {ctx.profile.name}\n"
+    lines = ["", "## Local maps (§II-D) and their transmission", "", "| figure | value |", "|---|---|"]
+    for k in _SEG_KEYS:
+        if k in figures:
+            v = figures[k]
+            lines.append(f"| {k} | {v:.4f} |" if isinstance(v, float) else f"| {k} | {v} |")
+    v2 = figures.get("visit2")
+    if v2:
+        lines += [
+            "",
+            "## Second visit: relocalization and map update (§II-E)",
+            "",
+            "| figure | value |",
+            "|---|---|",
+        ]
+        for k, v in v2.items():
+            if isinstance(v, list) and k != "changes":
+                v = ", ".join(map(str, v)) or "none"
+            if isinstance(v, dict | list):
+                continue
+            lines.append(f"| {k} | {v:.4f} |" if isinstance(v, float) else f"| {k} | {v} |")
+        for ch in v2.get("changes", []):
+            lines.append(
+                f"- {ch['kind']} structure: {ch['points']} points around {ch['center']} "
+                f"(segment {ch['segment']})"
+            )
+        for name in ("visits.png", "changes.png"):
+            if ctx.path(f"report/{name}").is_file():
+                lines += ["", f"![{name[:-4]}]({name})"]
+    from weldcell.sdk import artifacts
+
+    artifacts.write_text(path, text.rstrip("\n") + "\n" + "\n".join(lines) + "\n")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 from pydantic import Field
+from weldcell.plugins.mapping.segmentation import SegmentationSettings
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length, Speed
 
@@ -21,6 +22,12 @@ class FrontEndSettings(Settings):
     reprojection_px: float = Field(2.5, gt=0, description="RANSAC reprojection threshold [px]")
     ransac_iterations: int = Field(200, ge=10, description="RANSAC iterations")
     max_depth: Length = Field(12.0, gt=0, description="ignore depth beyond this (stereo noise ~ z^2) [m]")
+    depth_noise: float = Field(
+        1.5e-3,
+        gt=0,
+        description="stereo depth noise sigma_z = depth_noise * z^2 [1/m] (the camera's model; ZED 2i "
+        "HD720: 0.08 px subpixel / (448 px * 0.12 m baseline))",
+    )
 
 
 class EstimatorSettings(Settings):
@@ -47,7 +54,18 @@ class EstimatorSettings(Settings):
     pnp_sigma_t: Length = Field(0.005, gt=0, description="floor of the PnP factor translation sigma [m]")
     pnp_sigma_r: Angle = Field(0.002, gt=0, description="floor of the PnP factor rotation sigma [rad]")
     gnss_min_spread: Length = Field(8.0, gt=0, description="travel before GNSS is aligned to the world [m]")
+    gnss_correlation_time: float = Field(
+        60.0,
+        gt=0,
+        description="correlation time of the GNSS error [s] (M8T standalone: wandering bias, ~60 s; "
+        "RTK fixed: ~1 s): fixes within it share one fix's information",
+    )
     lost_after: int = Field(3, ge=1, description="frames without a visual pose before 'tracking lost'")
+    loop_closure: bool = Field(True, description="match key frames against marginalised ones near them")
+    loop_radius: Length = Field(3.0, gt=0, description="search radius for loop closures (> drift) [m]")
+    global_optimization: bool = Field(
+        True, description="batch optimisation of every key frame (with the loops) at the end of the drive"
+    )
 
 
 class MapSettings(Settings):
@@ -80,6 +98,28 @@ class ImuNoiseSettings(Settings):
     inflate: float = Field(2.0, ge=1, description="factor on every sigma (unmodelled effects)")
 
 
+class RevisitSettings(Settings):
+    """The second visit (simulation): the robot comes back, drives a second route over the mapped part of
+    the site from another start, relocalizes against the first visit's map and updates it (§II-E)."""
+
+    enabled: bool = Field(False, description="drive a second visit after the map is made (simulation)")
+    length: Length = Field(10.0, gt=1, description="second route's length [m]")
+    start_waypoint: int = Field(1, ge=0, description="the second route starts at this waypoint of the loop")
+    change_scene: bool = Field(True, description="add a box and remove a column before the visit")
+    yaw_sigma: Angle = Field(0.1745, gt=0, description="1-sigma of the magnetometer heading prior [rad]")
+    position_sigma: Length = Field(2.0, gt=0, description="1-sigma of the GNSS position prior [m]")
+    use_gnss: bool = Field(True, description="GNSS position prior when both visits aligned GNSS")
+    use_magnetometer: bool = Field(True, description="magnetometer heading prior")
+    change_distance: Length = Field(
+        0.15, gt=0, description="a point this far from the other map has changed [m]"
+    )
+    min_change_points: int = Field(30, ge=1, description="smallest cluster of changed map points reported")
+    change_max_depth: Length = Field(
+        5.0, gt=0, description="free-space evidence only from depth up to this range (noise ~ z^2) [m]"
+    )
+    min_views: int = Field(3, ge=1, description="key frames that must see through a point to call it changed")
+
+
 class MapJobSettings(Settings):
     """The ``map`` job: drive, estimate the trajectory, build the map, find the weld regions."""
 
@@ -107,3 +147,11 @@ class MapJobSettings(Settings):
     )
     max_frames: int | None = Field(None, ge=1, description="stop after this many camera frames")
     imu_wait: float = Field(1.0, gt=0, description="longest wait for IMU data covering a frame [s]")
+    segmentation: SegmentationSettings = Field(
+        default_factory=SegmentationSettings,
+        description="local maps while driving (§II-D): distance / point thresholds, ORB + NDT hand-over",
+    )
+    serve_map: bool = Field(True, description="serve the local maps while driving and fetch them on loopback")
+    revisit: RevisitSettings = Field(
+        default_factory=RevisitSettings, description="second visit: relocalize and update the map (§II-E)"
+    )

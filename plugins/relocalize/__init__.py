@@ -6,8 +6,24 @@ Registers the command ``weldcell map relocalize``.
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import CommandSpec
+from weldcell.sdk.descriptors import CommandSpec, StageSpec
 from weldcell.sdk.hookspecs import hookimpl
+
+
+@hookimpl
+def weldcell_register_stages(register) -> None:
+    from weldcell.plugins.relocalize import stage
+
+    register(
+        StageSpec(
+            name="relocalize.ndt",
+            kind="relocalizer",
+            summary="relocalization against a prior map: priors + NDT hypotheses, GICP fine, FPFH fallback, "
+            "verified",
+            settings=stage.RelocalizeSettings,
+            factory=stage.Relocalizer,
+        )
+    )
 
 
 @hookimpl

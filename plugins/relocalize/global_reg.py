@@ -12,9 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import Field
+from weldcell.sdk.registration.ndt import point_spacing
 from weldcell.sdk.settings import Settings
-
-from .ndt import point_spacing
 
 
 class GlobalSettings(Settings):
@@ -38,7 +37,7 @@ class GlobalResult:
 
 
 def derive_voxel(a: np.ndarray, b: np.ndarray, max_points: int) -> float:
-    from .ndt import voxel_keys
+    from weldcell.sdk.registration.ndt import voxel_keys
 
     v = 2.0 * max(point_spacing(a), point_spacing(b))
     while max(len(voxel_keys(a, v)[1]), len(voxel_keys(b, v)[1])) > max_points:

@@ -7,8 +7,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-
-from .ndt import NDT, voxel_downsample
+from weldcell.sdk.registration.ndt import NDT, voxel_downsample
 
 Method = Literal["ndt", "icp", "gicp", "vgicp"]
 METHODS: tuple[str, ...] = ("ndt", "icp", "gicp", "vgicp")
@@ -45,9 +44,9 @@ def refine(ndt: NDT, source: np.ndarray, T_init: np.ndarray, levels: tuple[float
     raise ValueError(f"unknown registration method {method!r}; use one of {', '.join(METHODS)}")
 
 
-def _gicp(ndt: NDT, source: np.ndarray, T: np.ndarray, r: float, method: str):
-    """small-gicp at cell size ``r``; the target's preprocessing (downsampling at r/4, covariances from 10
-    neighbours, KD-tree; VGICP: voxel map at r) is made once per NDT object and resolution."""
+def gicp_target(ndt: NDT, r: float, method: str = "gicp"):
+    """small-gicp's target at cell size ``r`` (downsampled at r/4, covariances from 10 neighbours, KD-tree;
+    VGICP: a voxel map at r), made once per NDT object and resolution and kept on it (a prepared map)."""
     import small_gicp
 
     cache = ndt.__dict__.setdefault("_small_gicp", {})
@@ -62,7 +61,14 @@ def _gicp(ndt: NDT, source: np.ndarray, T: np.ndarray, r: float, method: str):
             cache[key] = (vmap, None)
         else:
             cache[key] = (tgt, tree)
-    tgt, tree = cache[key]
+    return cache[key]
+
+
+def _gicp(ndt: NDT, source: np.ndarray, T: np.ndarray, r: float, method: str):
+    """small-gicp at cell size ``r`` against the (cached) prepared target."""
+    import small_gicp
+
+    tgt, tree = gicp_target(ndt, r, method)
     src, _ = small_gicp.preprocess_points(source, downsampling_resolution=r / 4.0, num_neighbors=10)
     if method == "vgicp":
         return small_gicp.align(tgt, src, T, max_correspondence_distance=r, max_iterations=30)

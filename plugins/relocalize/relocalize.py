@@ -24,12 +24,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import Field
 from scipy.spatial.transform import Rotation
+from weldcell.sdk.registration.ndt import NDT, NDTSettings, point_spacing, voxel_downsample
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle
 
 from .global_reg import GlobalSettings, global_register
 from .local_reg import refine
-from .ndt import NDT, NDTSettings, point_spacing, voxel_downsample
 
 SCHEMA = "weldcell/relocalization@1"
 
@@ -47,6 +47,13 @@ class RelocalizeSettings(Settings):
     yaw_step: Angle = Field(math.radians(30.0), gt=0, description="spacing of yaw hypotheses")
     candidates: int = Field(6, ge=3, description="hypotheses registered coarse to fine after ranking")
     global_attempts: int = Field(3, ge=1, description="FPFH + RANSAC runs (different seeds) before failing")
+    refine_margin: float = Field(
+        0.2,
+        ge=0,
+        le=1,
+        description="of the three best, a pose whose overlap before the fine level trails the best by more "
+        "than this is not refined (the fine level moves overlap by a few %; it stays a rival as it is)",
+    )
     ndt: NDTSettings = Field(default_factory=NDTSettings)
     global_reg: GlobalSettings = Field(default_factory=GlobalSettings)
 
@@ -143,8 +150,30 @@ def _positions(prior: np.ndarray, current: np.ndarray, priors: Priors, spacing: 
         return [(k, p + o) for o in offs for k in ("position", "position-ground")]
     if priors.keyframe_positions is not None and len(priors.keyframe_positions):
         return [("keyframe", p) for p in np.asarray(priors.keyframe_positions, float)]
-    xy = np.unique(np.floor(prior[:, :2] / spacing).astype(np.int64), axis=0)
+    xy = _cells(prior, spacing)
     return [("grid", np.array([(i + 0.5) * spacing, (j + 0.5) * spacing, np.nan])) for i, j in xy]
+
+
+def _ground(prior: np.ndarray) -> float:
+    key = (id(prior), prior.shape, "ground")
+    hit = _CELLS.get(key)
+    if hit is None or hit[0] is not prior:
+        hit = _CELLS[key] = (prior, float(np.percentile(prior[:, 2], 5)))
+    return hit[1]
+
+
+_CELLS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _cells(prior: np.ndarray, spacing: float) -> np.ndarray:
+    """Occupied (x, y) cells of the prior map at ``spacing`` (kept for the last few maps and spacings)."""
+    key = (id(prior), prior.shape, round(spacing, 9))
+    hit = _CELLS.get(key)
+    if hit is None or hit[0] is not prior:
+        if len(_CELLS) >= 8:
+            _CELLS.pop(next(iter(_CELLS)))
+        hit = _CELLS[key] = (prior, np.unique(np.floor(prior[:, :2] / spacing).astype(np.int64), axis=0))
+    return hit[1]
 
 
 def _hypotheses(
@@ -154,7 +183,7 @@ def _hypotheses(
     c = current.mean(axis=0)
     zc, zp = (
         np.percentile(current[:, 2], 5),
-        np.percentile(prior[:, 2], 5),
+        _ground(prior),
     )  # ground heights (gravity-aligned)
     for yaw in _yaws(priors, s.yaw_step):
         R = Rotation.from_euler("z", yaw).as_matrix()
@@ -170,6 +199,38 @@ def _hypotheses(
     return out
 
 
+class PriorMap:
+    """A prior map prepared once when it is loaded, then relocalized against many times: its NDT (cells per
+    resolution, made on first use and kept), point spacing, KD-tree, ground height and small-gicp targets.
+    :meth:`warm` makes the cells and targets of a relocalization ahead of time (the robot loads the prior
+    map before it needs it)."""
+
+    def __init__(self, points: np.ndarray, ndt_settings: NDTSettings | None = None) -> None:
+        from pykdtree.kdtree import KDTree
+
+        t0 = time.perf_counter()
+        self.points = np.asarray(points, dtype=float)
+        self.ndt = NDT(self.points, ndt_settings)
+        self.spacing = point_spacing(self.points)
+        self.tree = KDTree(self.points)
+        self.ground = float(np.percentile(self.points[:, 2], 5))
+        self.prepare_seconds = time.perf_counter() - t0
+
+    def warm(self, settings: RelocalizeSettings | None = None, uncertainties=(2.0,)) -> PriorMap:
+        """Build the NDT cells of the ladders for these uncertainties (m) and the fine small-gicp target."""
+        from .local_reg import gicp_target
+
+        s = settings or RelocalizeSettings()
+        t0 = time.perf_counter()
+        for u in (*uncertainties, float(np.max(np.ptp(self.points[:, :2], axis=0))) / 4.0):
+            for r in self.ndt.ladder(max(u, self.ndt.fine)):
+                self.ndt.grid(r)
+        if s.method in ("gicp", "vgicp"):
+            gicp_target(self.ndt, self.ndt.fine, s.method)
+        self.prepare_seconds += time.perf_counter() - t0
+        return self
+
+
 class _Checker:
     """The fit of the current map at a pose: NDT score at the fine resolution and ``overlap``, the share of
     current points (one per ``delta`` voxel) within ``delta`` of a prior-map point. ``delta`` = 2.5 x the
@@ -178,13 +239,13 @@ class _Checker:
     of a prior sample; a point on structure that is not in the prior map (another site, a wrong pose) does
     not. Tighter than NDT's 99 % ellipsoid, whose cells are several spacings wide."""
 
-    def __init__(self, ndt: NDT, prior: np.ndarray, current: np.ndarray) -> None:
+    def __init__(self, prior: PriorMap, current: np.ndarray, sampled: np.ndarray) -> None:
         from pykdtree.kdtree import KDTree
 
-        self.ndt = ndt
-        self.delta = 2.5 * max(point_spacing(prior), point_spacing(current))
-        self.tree = KDTree(prior)
-        self.current = current
+        self.ndt = prior.ndt
+        self.delta = 2.5 * max(prior.spacing, point_spacing(current))
+        self.tree = prior.tree
+        self.current = sampled
         self.sample = voxel_downsample(current, self.delta)
         # where the current cloud is sparser (LiDAR far range), the bound follows its local spacing
         local, _ = KDTree(current).query(self.sample, k=4)
@@ -209,18 +270,29 @@ def _search(chk: _Checker, current, hyps, uncertainty: float, s: RelocalizeSetti
     if len(hyps) > s.candidates:
         ranked = sorted(hyps, key=lambda h: -ndt.quality(current, h[1], coarse)[0])
         hyps = ranked[: s.candidates]
-    sols = []
-    for kind, T0 in hyps:
-        T = refine(ndt, current, T0, levels[:-1] or levels, "ndt")  # NDT's wide basin at the coarse cells
+    mid = levels[:-1] or levels  # NDT's wide basin at the coarse cells
+    # successive halving: every candidate at the coarsest cells, the better half (at least 3) further
+    first = [(kind, refine(ndt, current, T0, mid[:1], "ndt")) for kind, T0 in hyps]
+    first.sort(key=lambda h: -ndt.quality(current, h[1], mid[0])[0])
+    keep = max(3, (len(first) + 1) // 2)
+    sols = [_Solution(T, *chk.fit(T), kind) for kind, T in first[keep:]]  # still rivals in the verdict
+    for kind, T in first[:keep]:
+        if len(mid) > 1:
+            T = refine(ndt, current, T, mid[1:], "ndt")
         sols.append(_Solution(T, *chk.fit(T), kind))
     sols.sort(key=lambda x: -x.score)
     final = []
+    top = max(x.overlap for x in sols[:3])
+    rest = list(sols[3:])
     for sol in sols[:3]:  # §II-E: the three best refined at high resolution (distinct poses only)
         if any(not _distinct(f.T, sol.T, ndt.fine) for f in final):
             continue
+        if final and sol.overlap < top - s.refine_margin:  # cannot become a rival: kept as it is
+            rest.append(sol)
+            continue
         T = refine(ndt, current, sol.T, levels[-1:], s.method)
         final.append(_Solution(T, *chk.fit(T), sol.source))
-    return sorted(final, key=lambda x: -x.overlap) + sols[3:]
+    return sorted(final, key=lambda x: -x.overlap) + rest
 
 
 def _global(chk: _Checker, prior, current, s: RelocalizeSettings) -> list[_Solution]:
@@ -231,7 +303,8 @@ def _global(chk: _Checker, prior, current, s: RelocalizeSettings) -> list[_Solut
             prior, current, s.global_reg.model_copy(update={"seed": s.global_reg.seed + attempt})
         )
         lad = ndt.ladder(2.0 * g.voxel)
-        T = refine(ndt, current, refine(ndt, current, g.T, lad[:-1] or lad, "ndt"), lad[-1:], s.method)
+        src = chk.current  # the registrations use the current map sampled once
+        T = refine(ndt, src, refine(ndt, src, g.T, lad[:-1] or lad, "ndt"), lad[-1:], s.method)
         sols.append(_Solution(T, *chk.fit(T), "global"))
         if sols[-1].overlap >= s.min_overlap:
             break
@@ -266,18 +339,35 @@ def _verdict(sols: list[_Solution], s: RelocalizeSettings, fine: float) -> tuple
     return True, float(np.clip(0.5 + 0.5 * conf, 0.5, 1.0)), None
 
 
+def prepare(prior: np.ndarray | PriorMap, settings: RelocalizeSettings | None = None) -> PriorMap:
+    """The prior map prepared for these settings (``prior`` itself when it already is, with the same NDT
+    settings)."""
+    s = settings or RelocalizeSettings()
+    if isinstance(prior, PriorMap) and prior.ndt.settings == s.ndt:
+        return prior
+    return PriorMap(prior.points if isinstance(prior, PriorMap) else prior, s.ndt)
+
+
 def relocalize(
-    prior: np.ndarray,
+    prior: np.ndarray | PriorMap,
     current: np.ndarray,
     priors: Priors | None = None,
     settings: RelocalizeSettings | None = None,
 ) -> RelocalizationResult:
-    """Find T_prior_current (eq. 6) from the priors given; verified, else ``status == "failed"``."""
+    """Find T_prior_current (eq. 6) from the priors given; verified, else ``status == "failed"``.
+    ``prior`` is a cloud (N, 3) or a :class:`PriorMap` prepared once per loaded map (faster)."""
     t0 = time.perf_counter()
     s = settings or RelocalizeSettings()
     pr = priors or Priors()
-    ndt = NDT(prior, s.ndt)
-    chk = _Checker(ndt, prior, current)
+    pm = prepare(prior, s)
+    prior = pm.points
+    ndt = pm.ndt
+    current = np.asarray(current, dtype=float)
+    # the current map once at a quarter of the fine cell: every NDT level samples at >= half a cell and
+    # small-gicp downsamples at a quarter; the verification keeps the full cloud
+    full = current
+    chk = _Checker(pm, full, voxel_downsample(full, ndt.fine / 4.0))
+    current = chk.current
     used, notes, sols = [], [], []
     ok, conf, reason = False, 0.0, None
     if pr.yaw is not None:
@@ -289,7 +379,7 @@ def relocalize(
     if used and (pr.yaw is not None or pr.position is not None):
         extent = float(np.max(np.ptp(current[:, :2], axis=0)))
         unc = pr.position_sigma if pr.position is not None else max(ndt.fine, extent / 4.0)
-        spacing = max(2.0 * unc, ndt.fine) if pr.position is None else 0.0
+        spacing = max(unc, ndt.fine) if pr.position is None else 0.0
         hyps = _hypotheses(prior, current, pr, s, spacing)
         sols = _search(chk, current, hyps, max(unc, ndt.fine), s)
         ok, conf, reason = _verdict(sols, s, ndt.fine)
@@ -302,7 +392,7 @@ def relocalize(
                 f"the priors ({', '.join(used)}) did not verify: {reason}; trying global registration"
             )
     if not sols or not ok:
-        gl = _global(chk, prior, current, s)
+        gl = _global(chk, prior, full, s)
         sols = sorted(gl + sols, key=lambda x: -x.overlap)
         if sols[0].source == "global":
             used = ["global"] + [u for u in used if u != "keyframes"]

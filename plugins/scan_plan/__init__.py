@@ -3,7 +3,7 @@ denoising, edge-intensity seam extraction and 6-DOF torch paths."""
 
 from __future__ import annotations
 
-from weldcell.sdk.descriptors import CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
+from weldcell.sdk.descriptors import BatchSpec, CommandSpec, DeviceRole, JobSpec, StageRole, StageSpec
 from weldcell.sdk.hookspecs import hookimpl
 
 
@@ -87,6 +87,7 @@ def weldcell_register_commands(register) -> None:
             name="seam",
             command=cli.seam_command,
             summary="denoise -> seams -> 6-DOF torch paths on a cloud in the base frame",
+            batch=(BatchSpec(output="path.json", patterns=("*.ply", "*.pcd"), report_option="--report"),),
         )
     )
     register(
@@ -94,5 +95,6 @@ def weldcell_register_commands(register) -> None:
             name="reconstruct",
             command=cli.reconstruct_command,
             summary="merge posed scans + hand-eye into a model refined by linear ICP",
+            batch=(BatchSpec(output="model.ply", inputs="dir", markers=("scans.json", "state.json")),),
         )
     )

@@ -1,76 +1,171 @@
-"""The scan-and-plan report: summary.txt (what an operator reads), report.md and pictures."""
+"""The scan-and-plan report: ``summary.txt`` (what an operator reads on the terminal), and in ``report/``:
+``report.html`` (one self-contained page: verdict first, an interactive 3-D view of the model, seams
+and torch frames, a table per seam, cross-sections with the torch drawn), ``report.md`` and the PNGs
+for people who read files in a terminal. Each picture answers one question (report_figures.py).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+from typing import Any
+
 import numpy as np
+from weldcell.plugins.scan_plan.report_figures import (
+    SEAM_COLOURS,
+    SeamMeasures,
+    correction_sizes,
+    cross_section_figure,
+    fitness_figure,
+    overview_figure,
+    point_spacing,
+    seam_error_figure,
+    seam_measures,
+)
+from weldcell.sdk.artifacts import write_bytes
+from weldcell.sdk.html_report import figure_png
+
+SEAM_ERROR_ATTENTION = 0.002
+"""A found seam whose line strays more than this from the true one (simulation) is flagged [m]: about
+half the leg of a small fillet or the gap of a thin-plate groove, beyond which the wire can miss the
+joint root."""
 
 
-def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, frame_every=6):
-    idx = rng.choice(len(cloud_pts), size=min(max_points, len(cloud_pts)), replace=False)
-    P = cloud_pts[idx] * 1000
-    a, b = {"top": (0, 1), "front": (0, 2), "side": (1, 2)}[view]
-    ax.scatter(P[:, a], P[:, b], s=0.2, c=P[:, 2], cmap="Greys", alpha=0.5, rasterized=True)
-    if gt:
-        for i, (_, s) in enumerate(gt):
-            g = s.points * 1000
-            ax.plot(
-                g[:, a], g[:, b], "--", color="tab:green", lw=1.2, label="ground truth" if i == 0 else None
+@dataclass
+class Verdict:
+    """What the job concluded: ``status`` ok / attention / failed, a headline and the three lists."""
+
+    status: str
+    headline: str
+    found: list[str] = field(default_factory=list)
+    refused: list[str] = field(default_factory=list)
+    attention: list[str] = field(default_factory=list)
+
+
+def _deg(a) -> float:
+    return float(np.degrees(np.nanmean(a))) if len(a) else float("nan")
+
+
+def _spread(a, scale: float) -> str:
+    """'mean' or 'mean (min..max)' when the values vary."""
+    if not len(a):
+        return "-"
+    lo, mid, hi = (_f1(scale * f(a)) for f in (np.nanmin, np.nanmean, np.nanmax))
+    return mid if float(hi) - float(lo) < 0.5 else f"{mid} ({lo}..{hi})"
+
+
+def _f1(x: float) -> str:
+    """One decimal, without a '-0.0'."""
+    s = f"{x:.1f}"
+    return "0.0" if s == "-0.0" else s
+
+
+def verdict(ctx, rec, path, gt, measures: list[SeamMeasures]) -> Verdict:
+    """The verdict of a scan-and-plan run from what it computed and what was refused along the way."""
+    fig = ctx.figures
+    v = Verdict("ok", "")
+    m = path.metrics
+    for s in measures:
+        line = f"seam {s.id}: {s.joint}, {1e3 * s.length:.0f} mm, {s.poses} torch poses"
+        if s.error:
+            line += f", {1e3 * s.error['translation_m']:.2f} mm RMS from the true seam ({s.truth})"
+        v.found.append(line)
+    if gt and m.get("seams_true", 0) > len(path.seams):
+        v.attention.append(
+            f"{m['seams_true'] - len(path.seams)} of {m['seams_true']} true seams were not found: check the "
+            "scan covers every joint"
+        )
+    for s in measures:
+        if s.error and s.error.get("translation_max_m", 0.0) > SEAM_ERROR_ATTENTION:
+            v.attention.append(
+                f"seam {s.id} strays up to {1e3 * s.error['translation_max_m']:.1f} mm from the true seam "
+                f"(flagged above {1e3 * SEAM_ERROR_ATTENTION:g} mm): check its cross-sections"
             )
-    for i, seam in enumerate(path.seams):
-        q = seam.points * 1000
-        ax.plot(q[:, a], q[:, b], "-", color="tab:red", lw=1.6, label="seam found" if i == 0 else None)
-        T = seam.poses[::frame_every]
-        o = T[:, :3, 3] * 1000
-        for axis, color in ((0, "tab:orange"), (2, "tab:blue")):
-            d = T[:, :3, axis] * 8
-            ax.quiver(
-                o[:, a],
-                o[:, b],
-                d[:, a],
-                d[:, b],
-                color=color,
-                angles="xy",
-                scale_units="xy",
-                scale=1,
-                width=0.003,
+    acc = list(getattr(rec, "accepted", []))
+    for i, ok in enumerate(acc):
+        if not ok:
+            v.refused.append(
+                f"view {i}: the ICP correction was rejected; its kinematic pose (robot + hand-eye) kept"
             )
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("xyz"[a] + " [mm]")
-    ax.set_ylabel("xyz"[b] + " [mm]")
-    ax.set_title(f"{view} view (torch x orange, z blue)")
+    for note in fig.get("reconstruction_notes", []) or []:
+        if not any(note in r for r in v.refused):
+            v.attention.append(f"reconstruction: {note}")
+    refused_targets = (fig.get("scan") or {}).get("refused_targets", 0)
+    if refused_targets:
+        v.refused.append(
+            f"{refused_targets} gesture target(s) during the scan: the safety gate refused the camera move "
+            "(expected when the hand asks for a pose outside the workspace or too fast; the camera stayed)"
+        )
+    for name, reason in (fig.get("programs_refused") or {}).items():
+        v.refused.append(f"program {name} not written: {reason}")
+    ex = fig.get("execute") or {}
+    if ex.get("status") == "refused":
+        v.refused.append(f"execution: {ex.get('reason')} (nothing was sent to the robot)")
+        v.attention.append("the weld path was not executed: fix the reach or the workspace, then run again")
+    if "hand_eye_source" in fig and "nominal" in str(fig["hand_eye_source"]):
+        v.attention.append(
+            "the hand-eye is the camera mount's nominal value, not a calibration: calibrate the cell "
+            "(weldcell run profiles/cell1-calibrate-*.toml) before welding a real part"
+        )
+    n = len(path.seams)
+    done = {"done": "executed" + (" (dry run)" if ex.get("dry_run") else ""), "refused": "execution refused"}
+    tail = f"; {done[ex['status']]}" if ex.get("status") in done else ""
+    v.headline = f"{n} seam{'s' if n != 1 else ''} found and planned{tail}"
+    v.status = "attention" if (v.attention or ex.get("status") == "refused") else "ok"
+    return v
 
 
-def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] | None = None) -> None:
-    """summary.txt (with ``notes`` at its end), report/report.md and its pictures: every file written
-    whole, atomically and durably (never appended in place)."""
-    import matplotlib
+def _seam_table(measures: list[SeamMeasures], sim: bool) -> tuple[list[str], list[list], list[str]]:
+    cols = [
+        "seam",
+        "joint",
+        "length [mm]",
+        "seam points",
+        "torch poses",
+        "work angle [°]",
+        "travel angle [°] (+ push)",
+        "standoff [mm]",
+    ]
+    if sim:
+        cols += ["true seam", "position RMS [mm]", "position max [mm]", "orientation RMS [°]"]
+    rows, marks = [], []
+    for s in measures:
+        row = [
+            s.id,
+            s.joint + (" (closed)" if s.closed else ""),
+            round(1e3 * s.length, 1),
+            s.points,
+            s.poses,
+            _spread(s.work_angle, 180 / np.pi),
+            _spread(s.travel_angle, 180 / np.pi),
+            _spread(s.standoff, 1e3),
+        ]
+        mark = ""
+        if sim:
+            e = s.error
+            if e:
+                row += [
+                    s.truth,
+                    round(1e3 * e["translation_m"], 2),
+                    round(1e3 * e["translation_max_m"], 2),
+                    round(float(np.degrees(e["rotation_rad"])), 2),
+                ]
+                mark = "warn" if e["translation_max_m"] > SEAM_ERROR_ATTENTION else "ok"
+            else:
+                row += ["–", None, None, None]
+        rows.append(row)
+        marks.append(mark)
+    return cols, rows, marks
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    rng = np.random.default_rng(0)
-    fig, axes = plt.subplots(1, 3, figsize=(18, 6))
-    for ax, view in zip(axes, ("top", "front", "side"), strict=True):
-        plot_cloud_and_paths(ax, clean.points, path, gt, view, rng)
-    axes[0].legend(loc="upper right")
-    fig.suptitle(f"{ctx.profile.name}: {len(path.seams)} seam(s) on the reconstructed part")
-    fig.tight_layout()
-    ctx.save_figure(fig, "report/seams.png", dpi=110)
-    plt.close(fig)
+def _md_table(cols: list[str], rows: list[list]) -> list[str]:
+    from weldcell.sdk.html_report import format_value
 
-    fig, ax = plt.subplots(figsize=(6, 4))
-    views = np.arange(len(rec.fitness))
-    ax.plot(views, rec.fitness_before, "o--", label="before ICP (kinematics + hand-eye)")
-    ax.plot(views, rec.fitness, "o-", label="after linear ICP")
-    ax.set_xlabel("view")
-    ax.set_ylabel("fitness (eq. 20)")
-    ax.set_ylim(0, 1.05)
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    ctx.save_figure(fig, "report/fitness.png", dpi=110)
-    plt.close(fig)
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    out += ["| " + " | ".join(format_value(v) for v in r) + " |" for r in rows]
+    return out
 
+
+def _summary(ctx, scans, rec, clean, path, gt, notes) -> str:
     m = path.metrics
     lines = [f"weldcell scan-and-plan: {ctx.profile.name}", ""]
     lines.append(f"captures        {len(scans)}  (hand-eye: {ctx.figures.get('hand_eye_source')})")
@@ -96,21 +191,237 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] 
     )
     lines.append(f"timings         {timings}")
     lines.append("")
-    lines.append("files           weld_path.json, model.ply, model_denoised.ply, programs/, report/report.md")
+    lines.append(
+        "files           weld_path.json, model.ply, model_denoised.ply, programs/, "
+        "report/report.html (open it in a browser), report/report.md"
+    )
     for note in notes or []:
         lines += ["", note]
-    summary = "\n".join(lines) + "\n"
-    ctx.write_text("summary.txt", summary)
-    md = [
-        "# Scan-and-plan report",
-        "",
-        "```",
-        summary.rstrip(),
-        "```",
-        "",
-        "![seams and torch frames](seams.png)",
-        "",
-        "![ICP fitness per view](fitness.png)",
-        "",
+    return "\n".join(lines) + "\n"
+
+
+def _fitness_rows(rec) -> list[list]:
+    t, r = correction_sizes(rec)
+    acc = list(getattr(rec, "accepted", [True] * len(rec.fitness)))
+    return [
+        [
+            i,
+            round(float(rec.fitness_before[i]), 3),
+            round(float(rec.fitness[i]), 3),
+            round(1e3 * float(t[i]), 2),
+            round(float(np.degrees(r[i])), 2),
+            "yes" if acc[i] else "rejected",
+        ]
+        for i in range(len(rec.fitness))
     ]
+
+
+FITNESS_COLUMNS = ["view", "fitness before", "fitness after", "correction [mm]", "correction [°]", "kept"]
+FITNESS_TEXT = (
+    "Fitness (eq. 20) is the share of a view's points that lie within the fitness distance of the model "
+    "merged from the views before it. It is bounded by overlap: a view that sees new parts of the work "
+    "scores low without being wrong, so judge ICP by the change, not the level. Good: fitness after ≥ "
+    "before (a correction that lowers it by more than 0.02 is rejected automatically) and a correction "
+    "of a few mm and under a degree, i.e. the robot's kinematics and the hand-eye were already close. "
+    "A large correction on many views points at a wrong hand-eye calibration."
+)
+
+
+def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, frame_every=6):
+    """One orthographic view ("top", "front" or "side") of a cloud with the seams found, the true seams
+    (dashed, drawn first so the found ones lie on top) and the torch frames (x orange, z blue); used by
+    ``weldcell seam --report``."""
+    idx = rng.choice(len(cloud_pts), size=min(max_points, len(cloud_pts)), replace=False)
+    P = cloud_pts[idx] * 1000
+    a, b = {"top": (0, 1), "front": (0, 2), "side": (1, 2)}[view]
+    ax.scatter(P[:, a], P[:, b], s=0.2, c=P[:, 2], cmap="Greys", alpha=0.5, rasterized=True)
+    for i, (_, s) in enumerate(gt or []):
+        g = s.points * 1000
+        ax.plot(g[:, a], g[:, b], "--", color="tab:green", lw=1.2, label="ground truth" if i == 0 else None)
+    for i, seam in enumerate(path.seams):
+        q = seam.points * 1000
+        ax.plot(q[:, a], q[:, b], "-", color="tab:red", lw=1.6, label="seam found" if i == 0 else None)
+        T = seam.poses[::frame_every]
+        o = T[:, :3, 3] * 1000
+        for axis, color in ((0, "tab:orange"), (2, "tab:blue")):
+            d = T[:, :3, axis] * 8
+            ax.quiver(
+                o[:, a],
+                o[:, b],
+                d[:, a],
+                d[:, b],
+                color=color,
+                angles="xy",
+                scale_units="xy",
+                scale=1,
+                width=0.003,
+            )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("xyz"[a] + " [mm]")
+    ax.set_ylabel("xyz"[b] + " [mm]")
+    ax.set_title(f"{view} view (torch x orange, z blue)")
+
+
+def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] | None = None) -> None:
+    """summary.txt (with ``notes`` at its end), report/report.html, report/report.md and its pictures:
+    every file written whole, atomically and durably (never appended in place)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sim = bool(gt)
+    measures = seam_measures(path, gt)
+    v = verdict(ctx, rec, path, gt, measures)
+    summary = _summary(ctx, scans, rec, clean, path, gt, notes)
+    ctx.write_text("summary.txt", summary)
+    pts = np.asarray(clean.points, dtype=float)
+    spacing = point_spacing(pts)
+
+    pictures: list[tuple[str, str, Any]] = []  # (file, caption, figure)
+    pictures.append(
+        (
+            "seams.png",
+            "Where on the part are the seams, and which way does each run? Top view, arrow = travel"
+            + ("; the dashed green lines are the true seams." if sim else "."),
+            overview_figure(pts, path, gt),
+        )
+    )
+    gt_by_seam = {}
+    for s in measures:
+        name = str(s.truth).split("/")[0] if s.truth else None
+        gt_by_seam[s.id] = next((g.points for n, g in gt or [] if n == name), None)
+    for seam, s in zip(path.seams, measures, strict=True):
+        pictures.append(
+            (
+                f"seam_{seam.id}.png",
+                f"Seam {seam.id}: does the torch point into the joint at the right standoff and angle? Cuts "
+                "across the joint near its start, middle and end (the model's points "
+                f"{3 * 1e3 * spacing:.1f} mm thick), red x the seam found"
+                + (", green + the true seam." if sim else "."),
+                cross_section_figure(pts, seam, s, gt_by_seam.get(seam.id), spacing),
+            )
+        )
+    if sim and any(s.error_along is not None for s in measures):
+        pictures.append(
+            (
+                "seam_error.png",
+                "Where along each seam is the found line off the true one, and by how much?",
+                seam_error_figure(measures, SEAM_ERROR_ATTENTION),
+            )
+        )
+    if len(rec.fitness):
+        pictures.append(
+            (
+                "fitness.png",
+                "Did ICP improve each view's fit, and how far did it move the view?",
+                fitness_figure(rec),
+            )
+        )
+    rendered = []  # each picture drawn once: the same PNG is the file and the HTML's data URI
+    for name, caption, fig in pictures:
+        png = figure_png(fig, dpi=110)
+        plt.close(fig)
+        write_bytes(ctx.path(f"report/{name}"), png)
+        rendered.append((name, caption, png))
+    _write_html(ctx, v, summary, rec, clean, path, gt, measures, rendered)
+    _write_md(ctx, v, summary, rec, measures, sim, rendered)
+
+
+def _write_md(ctx, v: Verdict, summary: str, rec, measures, sim: bool, pictures) -> None:
+    md = ["# Scan-and-plan report", "", f"**{v.status.upper()}: {v.headline}**", ""]
+    for title, items in (
+        ("Found", v.found),
+        ("Refused, and why", v.refused),
+        ("Needs a person", v.attention),
+    ):
+        if items:
+            md += [f"{title}:", ""] + [f"- {x}" for x in items] + [""]
+    md += ["Open `report.html` (next to this file) in a browser for the interactive 3-D view.", ""]
+    md += ["## Seams", ""] + _md_table(*_seam_table(measures, sim)[:2]) + [""]
+    md += ["## Summary", "", "```", summary.rstrip(), "```", ""]
+    if len(rec.fitness):
+        md += (
+            ["## ICP per view", "", FITNESS_TEXT, ""] + _md_table(FITNESS_COLUMNS, _fitness_rows(rec)) + [""]
+        )
+    md += ["## Pictures", ""]
+    for name, caption, _ in pictures:
+        md += [f"![{caption}]({name})", "", f"*{caption}*", ""]
     ctx.write_text("report/report.md", "\n".join(md))
+
+
+def _write_html(ctx, v: Verdict, summary, rec, clean, path, gt, measures, pictures) -> None:
+    from weldcell.sdk.html_report import HtmlReport, Scene3D
+
+    sim = bool(gt)
+    rep = HtmlReport(
+        f"Scan-and-plan: {ctx.profile.name}",
+        f"run folder {ctx.run_dir.name}" + (" · simulated cell (ground truth known)" if sim else ""),
+    )
+    rep.set_verdict(v.status, v.headline, found=v.found, refused=v.refused, attention=v.attention)
+    cols, rows, marks = _seam_table(measures, sim)
+    sec = rep.section(
+        "Seams",
+        "One row per seam, in the planned welding order. Angles and standoff are measured from the planned "
+        "torch poses against the seam's own frame (work angle: tilt about the travel direction away "
+        "from the joint's bisector; travel angle: lean towards travel, + push, − drag); a range is shown "
+        "when they vary along the seam.",
+    )
+    sec.table(
+        cols,
+        rows,
+        caption="Seams found"
+        + (
+            f" (error against the true seams; flagged above {1e3 * SEAM_ERROR_ATTENTION:g} mm)" if sim else ""
+        ),
+        row_status=marks,
+    )
+    scene = Scene3D("model, seams and torch frames [mm]")
+    scene.cloud(clean.points, "denoised model", max_points=30000)
+    for _, s in gt or []:
+        scene.line(s.points, f"true seam {s.id}", color="#2ca02c", width=3, dash="dash")
+    for k, seam in enumerate(path.seams):
+        scene.line(
+            seam.points,
+            f"{seam.id} ({seam.joint})",
+            color=SEAM_COLOURS[k % len(SEAM_COLOURS)],
+            closed=seam.closed,
+        )
+        scene.frames(seam.poses, f"torch {seam.id}", length=0.01, max_frames=30)
+    rep.section(
+        "3-D view",
+        "Drag to turn, scroll to zoom, click a legend entry to hide it. Torch frames: orange = travel (x), "
+        "blue = torch axis towards the work (z).",
+    ).scene(scene)
+    by_name = {name: (name, caption) for name, caption, _ in pictures}
+    cuts = rep.section("Cross-sections", "Per seam, three cuts across the joint with the torch as planned.")
+    for name, caption, fig in pictures:
+        if name.startswith("seam_s"):
+            cuts.figure(fig, caption)
+    if "seam_error.png" in by_name or "seams.png" in by_name:
+        where = rep.section("Where the seams are")
+        for name, caption, fig in pictures:
+            if name in ("seams.png", "seam_error.png"):
+                where.figure(fig, caption)
+    if len(rec.fitness):
+        icp = rep.section("Reconstruction: ICP per view", FITNESS_TEXT)
+        icp.table(
+            FITNESS_COLUMNS,
+            _fitness_rows(rec),
+            row_status=["" if r[-1] == "yes" else "bad" for r in _fitness_rows(rec)],
+        )
+        for name, caption, fig in pictures:
+            if name == "fitness.png":
+                icp.figure(fig, caption)
+    files = rep.section("Files and summary")
+    files.table(
+        ["file", "what it is"],
+        [
+            ["weld_path.json", "seams and torch poses (weldcell/weld-path@1)"],
+            ["model.ply", "merged model"],
+            ["model_denoised.ply", "the model after denoising"],
+        ]
+        + [[p, "robot program"] for p in ctx.figures.get("programs", [])],
+    )
+    files.preformatted(summary)
+    rep.write(ctx.path("report/report.html"))

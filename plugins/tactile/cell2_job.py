@@ -136,6 +136,7 @@ def run(ctx) -> dict[str, Any]:
         figures["tactile"] = track(ctx, plan.points, s.track)
     finally:
         ctx.write_text("summary.txt", _summary(ctx, figures))
+        _report_html(ctx, figures, plan.points)
     ctx.write_text("summary.txt", _summary(ctx, figures))
     return figures
 
@@ -196,10 +197,65 @@ def _plot_error_vs_samples(ctx, rows: list[dict[str, float]]) -> None:
     ax[1].plot(n, [r["rotation_deg"] for r in rows], "o-", color="tab:orange")
     ax[1].set_ylabel("rotation error [deg]")
     for a in ax:
-        a.set_xlabel("samples (flange centres)")
-        a.set_yscale("log")
-        a.grid(alpha=0.3, which="both")
-    fig.suptitle("hand-eye error against the true mount vs samples (all-data fit, as Figs. 10-11)")
+        a.set_xlabel("samples used (flange centres)")
+        a.set_ylim(bottom=0)
+        a.grid(alpha=0.3)
+    fig.suptitle("How close is the hand-eye to the true camera mount as samples are added? (simulated cell)")
     fig.tight_layout()
     save_figure(fig, ctx.path("calibration_error_vs_samples.png"), dpi=110)
     plt.close(fig)
+
+
+def _words(key: str) -> str:
+    """A figure's key as words with its unit: ``error_translation_mm`` -> ``error translation [mm]``."""
+    for suffix, unit in (("_mm", " [mm]"), ("_deg", " [°]"), ("_s", " [s]")):
+        if key.endswith(suffix):
+            return key[: -len(suffix)].replace("_", " ") + unit
+    return key.replace("_", " ")
+
+
+def _report_html(ctx, figures: dict[str, Any], plan_points: np.ndarray) -> None:
+    """``report/report.html``: the tracking report (plugins/tactile/report.py) with the calibration and
+    the vision plan ahead of it; written also after a safe stop (from what was recorded)."""
+    from weldcell.sdk.artifacts import read_json
+
+    from . import report as tactile_report
+    from .job import _truth
+
+    track_file = ctx.run_dir / "tactile_track.json"
+    tactile = figures.get("tactile") or ctx.figures.get("tactile")
+    if not track_file.is_file() or not tactile:
+        return
+    truth = _truth(ctx, np.asarray(plan_points, dtype=float), ctx.stage_settings("servo"))
+    data = tactile_report.TrackData.from_document(
+        read_json(track_file), None if truth is None else truth["seam"]
+    )
+    c, p = figures.get("calibration", {}), figures.get("plan", {})
+    found, attention = [], []
+    if "error_translation_mm" in c:
+        found.append(
+            f"hand-eye: {c['error_translation_mm']:.3f} mm, {c['error_rotation_deg']:.4f}° from the true "
+            "camera mount (simulated cell)"
+        )
+    if p.get("vision_plan_rms_mm") is not None:
+        found.append(f"vision plan: {p['vision_plan_rms_mm']:.2f} mm RMS from the true seam")
+
+    def before(rep) -> None:
+        sec = rep.section(
+            "Calibration of the fixed camera (eye-on-base)",
+            "The hand-eye found by the calibration phase; its own report with every sample is in "
+            "calibrate/report/.",
+        )
+        sec.table(
+            ["figure", "value"], [[_words(k), v] for k, v in c.items() if not isinstance(v, list | dict)]
+        )
+        png = ctx.run_dir / "calibration_error_vs_samples.png"
+        if png.is_file():
+            sec.figure(png, "How close is the hand-eye to the true mount as samples are added?")
+        rep.section("Vision plan", "The seam planned from one scan with the estimated hand-eye.").table(
+            ["figure", "value"], [[_words(k), v] for k, v in p.items() if not isinstance(v, list | dict)]
+        )
+
+    tactile_report.write_html(
+        ctx, data, tactile, title="Calibrate and track", before=before, extra_verdict=(found, [], attention)
+    )

@@ -14,7 +14,8 @@ hand_eye``, an eye-on-base ``T_base_camera``), denoised and searched for seams b
 
 Writes ``tactile_track.json`` (``weldcell/tactile-track@1``), ``refined_path.json``
 (``weldcell/weld-path@1``: the seam found by touch, with torch poses), ``fig13_paths.png``,
-``deformation_over_time.png``, ``error_along_seam.png`` (simulated cell) and ``summary.txt``.
+``deformation_over_time.png``, ``error_along_seam.png`` (simulated cell), ``summary.txt`` and
+``report/report.html`` (plugins/tactile/report.py).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
-from weldcell.sdk.artifacts import save_figure
 from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import frame_from_axes, invert, transform_points
@@ -33,6 +33,7 @@ from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Duration, Frequency, Length, Speed
 from weldcell.sdk.weldpath import SeamPath, WeldPath
 
+from . import report as tactile_report
 from .paths import Polyline, left_normal
 from .servo import ServoSettings, TactileSeamServo, seam_from_tip_path
 from .srm_model import SRMParams, tip_deflection_from_tag
@@ -648,8 +649,9 @@ def _finish(
         wp.metrics = {k: v for k, v in metrics.items() if k.startswith("refined")}
         files["refined_path"] = f"{prefix}refined_path.json"
         wp.write(ctx.path(files["refined_path"]))
+    report_data = tactile_report.TrackData.from_record(rec, plan, refined, seam_est, truth)
     if s.plots and len(rec["t"]):
-        files.update(_plots(ctx, rec, plan, refined, seam_est, truth, S, prefix))
+        files.update(tactile_report.pictures(ctx, report_data, prefix))
     figures = {
         "stop_reason": stop_reason,
         "final_state": final_state,
@@ -657,6 +659,9 @@ def _finish(
         **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()},
         "files": files,
     }
+    if len(rec["t"]):
+        files["report"] = f"{prefix}report/report.html"
+        tactile_report.write_html(ctx, report_data, figures, prefix)
     ctx.write_text(f"{prefix}summary.txt", summary_text(figures, "tactile tracking"))
     ctx.state.data["notes"][f"{prefix}tactile figures"] = figures  # a resume returns these, moving nothing
     ctx.state.save()
@@ -698,80 +703,6 @@ def summary_text(fig: dict[str, Any], title: str) -> str:
     if "files" in fig:
         lines += ["", "files: " + ", ".join(str(v) for v in fig["files"].values())]
     return "\n".join(lines) + "\n"
-
-
-def _plots(ctx, rec, plan, refined, seam_est, truth, S: ServoSettings, prefix: str) -> dict[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out = {}
-    # Fig. 13: paths in the working plane, in a seam-aligned frame (along, across) so mm offsets show
-    ref = truth["seam"] if truth is not None else plan
-    o = ref[0, :2]
-    u = (ref[-1, :2] - o) / max(np.linalg.norm(ref[-1, :2] - o), 1e-9)
-    v = left_normal(u)
-
-    def uv(P):
-        P = np.asarray(P, dtype=float).reshape(-1, 3)[:, :2] - o
-        return 1e3 * (P @ u), 1e3 * (P @ v)
-
-    fig, ax = plt.subplots(figsize=(10, 4.2))
-    if truth is not None:
-        ax.plot(*uv(truth["seam"]), "k-", lw=2, label="true seam")
-    ax.plot(*uv(plan), "--", color="tab:orange", label="planned path (vision)")
-    ax.plot(*uv(rec["tcp"]), "-", color="tab:blue", lw=1, label="robot $P_r$ (TCP)")
-    if len(refined):
-        ax.plot(*uv(refined), "-", color="tab:green", lw=1, label="SRM tip $P_s$ (refined path)")
-        ax.plot(*uv(seam_est), ":", color="tab:red", lw=1.5, label="seam from touch")
-    ax.plot(*uv(rec["torch"]), "-", color="tab:purple", lw=0.8, alpha=0.7, label="torch $P_t$")
-    ax.set_xlabel("along the seam [mm]")
-    ax.set_ylabel("across the seam [mm]")
-    ax.set_title("paths in the working plane (as Fig. 13)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
-    save_figure(fig, ctx.path(f"{prefix}fig13_paths.png"), dpi=110)
-    plt.close(fig)
-    out["fig13"] = f"{prefix}fig13_paths.png"
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True)
-    t = rec["t"]
-    axes[0].plot(t, 1e3 * rec["delta_n"], label=r"$\delta^{n_s}$ measured")
-    axes[0].plot(t, 1e3 * rec["delta_t"], label=r"$\delta^{t_s}$ measured", alpha=0.8)
-    axes[0].plot(t, 1e3 * rec["delta_d"], "k--", label=r"$\delta_d$")
-    axes[0].set_ylabel("deformation [mm]")
-    axes[0].legend(fontsize=8)
-    axes[0].grid(alpha=0.3)
-    axes[0].set_title("servo deformation over time")
-    axes[1].plot(t, 1e3 * np.linalg.norm(rec["twist"][:, :2], axis=1), label="|V_r| (plane) [mm/s]")
-    axes[1].plot(t, np.degrees(rec["twist"][:, 5]), label=r"$\omega$ [deg/s]")
-    axes[1].set_xlabel("time [s]")
-    axes[1].legend(fontsize=8)
-    axes[1].grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, ctx.path(f"{prefix}deformation_over_time.png"), dpi=110)
-    plt.close(fig)
-    out["deformation"] = f"{prefix}deformation_over_time.png"
-
-    if truth is not None and len(seam_est) >= 2:
-        line = Polyline(truth["seam"])
-        fig, ax = plt.subplots(figsize=(10, 3.5))
-        s_p = np.array([line.project(p).s for p in plan])
-        ax.plot(1e3 * s_p, 1e3 * line.distances(plan), color="tab:orange", label="planned path (vision)")
-        s_r = np.array([line.project(p).s for p in seam_est])
-        ax.plot(1e3 * s_r, 1e3 * line.distances(seam_est), color="tab:red", label="seam from touch")
-        ax.set_xlabel("along the seam [mm]")
-        ax.set_ylabel("distance to the true seam [mm]")
-        ax.set_yscale("log")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        save_figure(fig, ctx.path(f"{prefix}error_along_seam.png"), dpi=110)
-        plt.close(fig)
-        out["error_along_seam"] = f"{prefix}error_along_seam.png"
-    return out
 
 
 # -- the tactile-track job -----------------------------------------------------------------------

@@ -289,7 +289,7 @@ def test_the_report_is_written_whole(tmp_path, capfd):
     code, output, _, _ = run_cli(capfd, *args)
     assert code == 0, output
     names = sorted(p.name for p in rep.iterdir())
-    assert names == ["report.md", "residuals.png", "summary.txt"]
+    assert names == ["report.html", "report.md", "residuals.png", "summary.txt"]
     assert "T_base_camera" in (rep / "summary.txt").read_text()
     assert (rep / "residuals.png").read_bytes()[:4] == b"\x89PNG"
 

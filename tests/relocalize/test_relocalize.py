@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from weldcell.plugins.relocalize import synth
-from weldcell.plugins.relocalize.relocalize import Priors, relocalize
+from weldcell.plugins.relocalize.relocalize import Priors, RelocalizeSettings, relocalize
 
 SIZE = (24.0, 18.0)
 
@@ -93,3 +93,27 @@ def test_imu_yaw_with_prior_keyframes_as_position_hypotheses(site):
     pri = Priors(yaw=math.radians(64), keyframe_positions=kf)
     res = relocalize(site, _visit(site, T, seed=7), pri)
     assert res.status == "ok" and _correct(res, T) and res.priors_used == ["yaw", "keyframes"]
+
+
+def test_gnss_jump_never_gives_a_wrong_answer(site):
+    """A GNSS fix that jumped 15 m (multipath next to steel) with a stated 2 m: the pose from it does not
+    verify; the answer is the right pose (global registration, the jump named as a rejected prior) or
+    failed, never a wrong pose reported ok."""
+    T = synth.pose(1.0, -2.0, 0.0, math.radians(50))
+    pr = Priors(math.radians(52), math.radians(5), T[:3, 3] + [15.0, -6.0, 0.0], 2.0)
+    res = relocalize(site, _visit(site, T, seed=5), pr, RelocalizeSettings(global_attempts=1))
+    assert res.status == "failed" or _correct(res, T)
+    if res.status == "ok":
+        assert "position" not in res.priors_used and any("rejected" in n for n in res.notes)
+
+
+def test_prepared_prior_map_gives_the_same_answer(site):
+    from weldcell.plugins.relocalize.relocalize import PriorMap
+
+    T = synth.pose(2.0, 1.0, 0.0, math.radians(-20))
+    cur = _visit(site, T, seed=6)
+    pr = Priors(math.radians(-18), math.radians(5), T[:3, 3] + [0.5, 0.5, 0.0])
+    pm = PriorMap(site).warm()
+    a, b = relocalize(pm, cur, pr), relocalize(site, cur, pr)
+    assert a.status == b.status == "ok" and _correct(a, T)
+    assert np.allclose(a.T_prior_current, b.T_prior_current, atol=1e-6)

@@ -1,4 +1,6 @@
-"""Point-to-distribution NDT (Magnusson 2009, the paper's ref. [33]; the registration of §II-D/§II-E).
+"""Point-to-distribution NDT (Magnusson 2009; paper 004's ref. [33], the registration of its §II-D hand-over
+between local maps and of its §II-E relocalization). Pure numerics (numpy, pykdtree): the public home of
+NDT for every plugin (plugins/mapping's segment hand-over, plugins/relocalize).
 
 * The target is cut into cubic cells of side ``r``; every cell with at least ``min_points_per_cell``
   points becomes a Gaussian (mean, covariance). Covariances are regularised as in the thesis (§6.2):
@@ -139,13 +141,24 @@ def resolution_ladder(
     about one cell), limited to a quarter of the target's extent; halved down to the fine size."""
     fine = fine_resolution(target, settings) if fine is None else fine
     ext = float(np.max(np.ptp(target, axis=0)))
-    coarse = settings.coarse_resolution or float(np.clip(2.0 * uncertainty, fine, max(fine, ext / 4.0)))
+    wide = float(np.clip(2.0 * uncertainty, fine, max(fine, ext / 4.0)))
+    coarse = settings.coarse_resolution or _snap(wide, fine)
+    while not settings.coarse_resolution and coarse > max(fine, ext / 4.0) * 1.001 and coarse > fine * 1.001:
+        coarse /= 2.0  # never coarser than a quarter of the target
     out = [coarse]
     while out[-1] / 2.0 > fine * 1.2:
         out.append(out[-1] / 2.0)
     if out[-1] > fine * 1.001:
         out.append(fine)
     return tuple(out)
+
+
+def _snap(coarse: float, fine: float) -> float:
+    """``coarse`` rounded to the nearest ``fine`` x 2^k (k >= 0): every ladder of one target then uses the
+    same cell sizes, so a prepared target (:class:`NDT` caches its cells per size) serves every
+    uncertainty."""
+    k = max(0, int(round(np.log2(max(coarse, fine) / fine))))
+    return float(fine * 2.0**k)
 
 
 def score_constants(resolution: float, outlier_ratio: float) -> tuple[float, float]:
@@ -316,6 +329,21 @@ class NDT:
             raise DataError("the NDT target needs at least 10 finite points", "check the map or cloud file")
         self.fine = fine_resolution(self.target, self.settings)
         self._grids: dict[float, CellGrid] = {}
+        self._samples: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+    def sample(self, source: np.ndarray, resolution: float) -> np.ndarray:
+        """The source points scored at ``resolution``: one per half-cell voxel, at most
+        ``max_source_points``. The last few samples are kept (the cache holds the source array itself, so its
+        identity cannot be reused; a source changed in place between calls is not supported)."""
+        key = (id(source), source.shape, round(float(resolution), 9))
+        hit = self._samples.get(key)
+        if hit is not None and hit[0] is source:
+            return hit[1]
+        pts = _sample(source, resolution / 2.0, self.settings.max_source_points)
+        if len(self._samples) >= 16:
+            self._samples.pop(next(iter(self._samples)))
+        self._samples[key] = (source, pts)
+        return pts
 
     def grid(self, resolution: float) -> CellGrid:
         key = round(float(resolution), 9)
@@ -329,7 +357,7 @@ class NDT:
     def quality(
         self, source: np.ndarray, T: np.ndarray, resolution: float | None = None
     ) -> tuple[float, float]:
-        src = _sample(source, (resolution or self.fine) / 2.0, self.settings.max_source_points)
+        src = self.sample(source, resolution or self.fine)
         pts = src @ T[:3, :3].T + T[:3, 3]
         return fit_quality(self.grid(resolution or self.fine), pts, self.settings.k_cells)
 
@@ -349,7 +377,7 @@ class NDT:
         levels = resolutions or self.ladder(uncertainty if uncertainty is not None else 2.0 * self.fine)
         total, converged = 0, False
         for r in levels:
-            src = _sample(source, r / 2.0, self.settings.max_source_points)
+            src = self.sample(source, r)
             T, it, converged = _align_level(self.grid(r), src, T, self.settings)
             total += it
         score, overlap = self.quality(source, T, levels[-1])
