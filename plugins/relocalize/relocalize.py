@@ -54,8 +54,14 @@ class RelocalizeSettings(Settings):
         description="of the three best, a pose whose overlap before the fine level trails the best by more "
         "than this is not refined (the fine level moves overlap by a few %; it stays a rival as it is)",
     )
-    ndt: NDTSettings = Field(default_factory=NDTSettings)
-    global_reg: GlobalSettings = Field(default_factory=GlobalSettings)
+    ndt: NDTSettings = Field(
+        default_factory=NDTSettings,
+        description="P2D NDT (sdk.registration.ndt): resolutions, outlier ratio, steps",
+    )
+    global_reg: GlobalSettings = Field(
+        default_factory=GlobalSettings,
+        description="FPFH + RANSAC global registration when the priors do not verify",
+    )
 
 
 @dataclass

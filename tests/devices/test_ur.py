@@ -127,7 +127,9 @@ def test_joint_move_and_speed_servo(cell):
         np.testing.assert_allclose(arm.state().q, q, atol=1e-12)
         p0 = arm.state().T_base_tcp[:3, 3]
         arm.speed_linear(np.array([0.0, 0.02, -0.01, 0, 0, 0]), accel=0.5, duration=0.5)
-        time.sleep(0.02)
+        deadline = time.monotonic() + 5.0  # the peer integrates the command in its own process
+        while time.monotonic() < deadline and np.allclose(arm.state().T_base_tcp[:3, 3], p0):
+            time.sleep(0.01)
         np.testing.assert_allclose(arm.state().T_base_tcp[:3, 3] - p0, [0.0, 0.01, -0.005], atol=1e-6)
         arm.stop()
         assert FakeRTDEControlInterface.calls[-1][0] == "stopL"

@@ -16,7 +16,8 @@ from .test_study import PROFILE
 def cli(plugins, monkeypatch):
     import weldcell.plugins.scale_out as scale_out
 
-    plugins.register(scale_out, name="scale_out")
+    if "scale_out" not in plugins.providers:  # installed through its entry point, or not (yet)
+        plugins.register(scale_out, name="scale_out")
     monkeypatch.delenv("DASK_SCHEDULER_ADDRESS", raising=False)
 
     def run(*args):
