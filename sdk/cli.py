@@ -145,7 +145,10 @@ class WeldcellGroup(click.Group):
                 from weldcell.sdk.secrets import redact
 
                 sys.stderr.write(redact(traceback.format_exc()))
-            console.print(f"[bold red]error:[/bold red] {escape(e.message)}")
+            if getattr(e, "warning", False):  # a JobWarning: the job finished, its result needs a person
+                console.print(f"[bold yellow]warning:[/bold yellow] {escape(e.message)}")
+            else:
+                console.print(f"[bold red]error:[/bold red] {escape(e.message)}")
             for line in getattr(e, "problems", []) or []:
                 console.print(f"  - {escape(line)}")
             if e.fix:

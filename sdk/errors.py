@@ -87,3 +87,11 @@ class JobError(WeldcellError):
     """A job could not complete; artifacts captured so far are kept in the run folder."""
 
     exit_code = 1
+
+
+class JobWarning(JobError):
+    """The job finished and wrote everything, but its result needs a person before it is used
+    (a seam found over only part of its length). ``result.json`` says ``"status": "warning"``."""
+
+    exit_code = 7
+    warning = True

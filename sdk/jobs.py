@@ -620,7 +620,8 @@ def _run_job(profile_path, pm, run_dir, runs_dir, reporter, overrides, redo):
         result.update(status="failed", error={"type": type(e).__name__, "message": e.message, "fix": e.fix})
         raise
     except WeldcellError as e:
-        result.update(status="failed", error={"type": type(e).__name__, "message": e.message, "fix": e.fix})
+        status = "warning" if getattr(e, "warning", False) else "failed"  # JobWarning: all was written
+        result.update(status=status, error={"type": type(e).__name__, "message": e.message, "fix": e.fix})
         raise
     except KeyboardInterrupt:
         result.update(

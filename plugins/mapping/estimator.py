@@ -12,7 +12,11 @@ Factors:
   factors are its Gauss-Newton summary; see docs/methods/mapping.md);
 * ``GPSFactor`` when a GNSS fix exists, once the local ENU frame is aligned to the world (4-DoF).
 The graph is solved by gtsam's ``IncrementalFixedLagSmoother`` (iSAM2 with marginalisation of key
-frames older than ``window`` seconds), so the cost per key frame is bounded.
+frames older than ``window`` seconds), so the cost per key frame is bounded. Every factor is also kept
+in a :class:`~.globalopt.GlobalGraph` with loop closures (a new key frame re-observing a marginalised
+one); :meth:`VioEstimator.finalize` solves it in one batch at the end of the drive (eq. 5 over all key
+frames). PnP factors carry the covariance of the sensor models (ORB octave, stereo depth noise), GNSS
+factors the receiver's accuracy weighted by its error's correlation time.
 Between key frames, each camera frame is tracked by PnP against the last key frame with the IMU
 prediction as initial guess; when that fails for ``lost_after`` frames tracking is reported lost
 and the IMU alone propagates (a key frame without visual factor) until PnP succeeds again.
@@ -26,11 +30,18 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 from weldcell.hal.readings import Intrinsics
-from weldcell.plugins.mapping.frontend import FrameFeatures, OrbFrontEnd, fill_missing_depth
+from weldcell.plugins.mapping.frontend import FrameFeatures, OrbFrontEnd, PnPResult, fill_missing_depth
+from weldcell.plugins.mapping.globalopt import GlobalGraph, close_loops
 from weldcell.plugins.mapping.interp import umeyama
 from weldcell.sdk.errors import DataError
 
 GRAVITY = 9.80665
+
+
+def _time_now() -> float:
+    import time
+
+    return time.perf_counter()
 
 
 @dataclass
@@ -120,9 +131,11 @@ class VioEstimator:
         self.is_lost = False
         self.T_world_enu: np.ndarray | None = None
         self._gnss_pairs: list[tuple[np.ndarray, int]] = []
+        self._gnss_last_t: float | None = None
         self._live: set[int] = set()
         self.frame_poses: list[tuple[float, np.ndarray, bool]] = []
         self.timing: dict[str, list[float]] = {"frontend": [], "backend": []}
+        self.global_graph = GlobalGraph()
 
     # -- inputs ------------------------------------------------------------------------------------
     def add_imu(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray) -> None:
@@ -150,6 +163,8 @@ class VioEstimator:
     # -- initialisation ----------------------------------------------------------------------------
     def _initialise(self, t: float, rgb, depth, K: Intrinsics, truth) -> KeyFrame:
         samples = [s for s in self.imu if s[0] <= t and s[0] >= t - self.s.init_time]
+        if len(samples) < 10 and not self.s.use_imu:  # visual-only (e.g. an RGB-D sequence without IMU)
+            return self._initialise_without_imu(t, rgb, depth, K, truth)
         if len(samples) < 10:
             raise DataError(
                 f"only {len(samples)} IMU samples before the first camera frame at t={t:.2f} s",
@@ -189,6 +204,28 @@ class VioEstimator:
         self._update(graph, values, {0: t})
         self.keyframes.append(kf)
         self._event(t, "info", "initialised: world = first IMU frame, gravity-aligned")
+        return kf
+
+    def _initialise_without_imu(self, t: float, rgb, depth, K: Intrinsics, truth) -> KeyFrame:
+        """Visual-only start (``use_imu = false`` and no IMU data): the world is the first body frame,
+        not gravity-aligned; poses, velocities and (unused) biases get priors."""
+        feats = self.fe.extract(rgb, depth, K)
+        kf = KeyFrame(0, t, t, rgb, depth, K, feats, np.eye(4), np.zeros(3), np.zeros(6), True, truth)
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
+        graph.add(gtsam.PriorFactorVector(V(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+        graph.add(
+            gtsam.PriorFactorConstantBias(
+                B(0), self._bias(np.zeros(6)), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+            )
+        )
+        values.insert(X(0), gtsam.Pose3())
+        values.insert(V(0), np.zeros(3))
+        values.insert(B(0), self._bias(np.zeros(6)))
+        self._update(graph, values, {0: t})
+        self.keyframes.append(kf)
+        self._event(t, "info", "initialised without IMU: world = first body frame (not gravity-aligned)")
         return kf
 
     @staticmethod
@@ -250,7 +287,7 @@ class VioEstimator:
         t0 = _time.perf_counter()
         pim, covered, T_pred, v_pred = self._predict(last, t, events)
         feats = self.fe.extract(rgb, depth, K)
-        pnp, T_world_imu = self._track(last, t, feats, K, T_pred, events)
+        pnp, T_world_imu = self._track(last, t, feats, K, T_pred, events, self.s.use_imu and covered)
         tracked = pnp is not None and pnp.ok
         self.timing["frontend"].append(_time.perf_counter() - t0)
         kf = None
@@ -287,13 +324,15 @@ class VioEstimator:
         T_pred[:3, 3] += last.velocity * (t - last.t)
         return pim, covered, T_pred, last.velocity
 
-    def _track(self, last: KeyFrame, t: float, feats, K, T_pred: np.ndarray, events: list[str]):
-        """PnP against the last key frame with the prediction as guess; lost/recovered bookkeeping."""
+    def _track(self, last: KeyFrame, t: float, feats, K, T_pred: np.ndarray, events: list[str], guided: bool):
+        """PnP against the last key frame with the prediction as guess (matching by projection only when
+        the IMU predicted it: a constant-velocity guess is too rough, its window would hold wrong
+        matches biased towards the guess); lost/recovered bookkeeping."""
         pnp = None
         T_world_cam_last = last.T_world_imu @ self.T_imu_cam
         if self.s.use_vision:
             guess = np.linalg.inv(T_world_cam_last) @ T_pred @ self.T_imu_cam
-            pnp = self.fe.relative_pose(last.features, feats, K, guess)
+            pnp = self.fe.relative_pose(last.features, feats, K, guess, guided=guided)
         if pnp is not None and pnp.ok:
             if self.is_lost:
                 msg = "visual tracking re-initialised against the last key frame"
@@ -353,7 +392,7 @@ class VioEstimator:
             )
         visual = False
         if self.s.use_vision:
-            visual = self._visual_factors(graph, k, feats, K, pnp)
+            visual = self._visual_factors(graph, k, feats, K, pnp, T_world_imu)
         self._gnss_factor(graph, k, t, T_world_imu)
         kf = KeyFrame(
             k,
@@ -371,9 +410,52 @@ class VioEstimator:
         )
         self.keyframes.append(kf)
         self._update(graph, values, stamps)
+        if visual and self.s.loop_closure:
+            self._close_loops(kf)
         return kf
 
-    def _visual_factors(self, graph, k: int, feats, K, pnp) -> bool:
+    def _pnp_sigmas(self, res: PnPResult) -> np.ndarray:
+        """1-sigma (rotation x3 rad, translation x3 m) of a PnP relative pose: its own reprojection
+        covariance, floored by the settings (depth noise and correlated errors are not in the residuals)."""
+        sr = max(self.s.pnp_sigma_r, res.sigma_r if np.isfinite(res.sigma_r) else 1.0)
+        st = max(self.s.pnp_sigma_t, res.sigma_t if np.isfinite(res.sigma_t) else 1.0)
+        return np.array([sr] * 3 + [st] * 3)
+
+    def _close_loops(self, kf: KeyFrame) -> None:
+        """Loop closure against marginalised key frames near ``kf`` (:func:`.globalopt.close_loops`)."""
+        close_loops(self, kf)
+
+    def finalize(self) -> bool:
+        """Global optimisation (eq. 5 over every key frame, with the loop closures): all key frames get
+        their batch estimate. False (and a warning event) when it could not run."""
+        if not self.s.global_optimization or len(self.keyframes) < 2:
+            return False
+        t0 = _time_now()
+        try:
+            est = self.global_graph.optimise(self.keyframes)
+        except RuntimeError as e:
+            est = None
+            why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        else:
+            why = "the factor graph does not cover every key frame (resumed run)"
+        if est is None:
+            self._event(self.keyframes[-1].t, "warning", f"global optimisation skipped: {why}")
+            return False
+        for kf in self.keyframes:
+            kf.T_world_imu = est.atPose3(X(kf.index)).matrix()
+            kf.velocity = np.asarray(est.atVector(V(kf.index)))
+            b = est.atConstantBias(B(kf.index))
+            kf.bias = np.concatenate([b.accelerometer(), b.gyroscope()])
+        self.timing["global"] = [_time_now() - t0]
+        self._event(
+            self.keyframes[-1].t,
+            "info",
+            f"global optimisation: {len(self.keyframes)} key frames, "
+            f"{len(self.global_graph.loops)} loop closures, {1000 * self.timing['global'][0]:.0f} ms",
+        )
+        return True
+
+    def _visual_factors(self, graph, k: int, feats, K, pnp, T_world_imu: np.ndarray) -> bool:
         any_ok = False
         for j in range(max(0, k - self.s.links), k):
             if j not in self._live:  # marginalised (older than the window) or before a resume
@@ -382,15 +464,12 @@ class VioEstimator:
             if j == k - 1 and pnp is not None:
                 res = pnp
             else:
-                res = self.fe.relative_pose(ref.features, feats, K)
+                guess = self.T_cam_imu @ np.linalg.inv(ref.T_world_imu) @ T_world_imu @ self.T_imu_cam
+                res = self.fe.relative_pose(ref.features, feats, K, guess)
             if not res.ok:
                 continue
             T_rel = self.T_imu_cam @ res.T_ref_cur @ self.T_cam_imu
-            # sigma from the PnP's own reprojection covariance, floored by the settings (depth noise
-            # and correlated errors are not in the reprojection residuals)
-            sr = max(self.s.pnp_sigma_r, res.sigma_r if np.isfinite(res.sigma_r) else 1.0)
-            st = max(self.s.pnp_sigma_t, res.sigma_t if np.isfinite(res.sigma_t) else 1.0)
-            sig = np.array([sr] * 3 + [st] * 3)
+            sig = self._pnp_sigmas(res)
             graph.add(
                 gtsam.BetweenFactorPose3(
                     X(j),
@@ -418,9 +497,17 @@ class VioEstimator:
             return
         p_world = self.T_world_enu[:3, :3] @ enu + self.T_world_enu[:3, 3]
         p_imu = p_world - T_world_imu[:3, :3] @ self.lever
+        # the receiver's error is time-correlated (standalone: a slowly wandering bias), so fixes
+        # within one correlation time are not independent: each factor carries 1/n of the information
+        # of an independent fix, n = fixes used per correlation time
+        gap = t - self._gnss_last_t if self._gnss_last_t is not None else self.s.gnss_correlation_time
+        n = max(1.0, self.s.gnss_correlation_time / max(gap, 1e-3))
+        self._gnss_last_t = t
         graph.add(
             gtsam.GPSFactor(
-                X(k), gtsam.Point3(*p_imu), gtsam.noiseModel.Diagonal.Sigmas(np.maximum(sig, 0.005))
+                X(k),
+                gtsam.Point3(*p_imu),
+                gtsam.noiseModel.Diagonal.Sigmas(np.maximum(sig, 0.005) * np.sqrt(n)),
             )
         )
 
@@ -462,6 +549,7 @@ class VioEstimator:
                 ts.insert((sym, t))
         try:
             self.smoother.update(graph, values, ts)
+            self.global_graph.add(graph)
         except RuntimeError as e:  # gtsam: indeterminate / ill-conditioned system
             first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise DataError(

@@ -239,6 +239,8 @@ def finish(ctx, rig, tr) -> dict:
             "no key frame was made: the estimator never initialised",
             "keep the robot still for init_time seconds at the start with the IMU streaming",
         )
+    with ctx.step("global optimisation"):  # eq. 5 over every key frame, with the loop closures
+        est.finalize()
     with ctx.step("map"):
         t0 = time.perf_counter()
         vm, _ = build_map(ctx, tr)
@@ -297,6 +299,7 @@ def finish(ctx, rig, tr) -> dict:
         "map_points": len(vm),
         "regions": len(regions),
         "tracking_lost_events": sum(e["kind"] == "lost" for e in est.events),
+        "loop_closures": len(est.global_graph.loops),
         "gnss_aligned": est.T_world_enu is not None,
         "time_per_stage": timing,
         "frame_seconds_mean": float(np.mean(tr.frame_seconds)) if tr.frame_seconds else None,

@@ -7,14 +7,16 @@ import re
 import time
 import warnings
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 from pydantic import Field
 from rich.markup import escape
+from weldcell.plugins.scan_plan.coverage import expected_coverage, partial_seams, seam_coverage
 from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
 from weldcell.sdk.artifacts import read_json, sha256_file
 from weldcell.sdk.cloud import drop_invalid, read_cloud, write_cloud
-from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
+from weldcell.sdk.errors import DataError, DeviceError, JobError, JobWarning, SafetyError
 from weldcell.sdk.geometry import invert
 from weldcell.sdk.scan import PosedScan
 from weldcell.sdk.settings import Settings
@@ -45,6 +47,18 @@ class ScanAndPlanSettings(Settings):
     )
     approach_distance: Length = Field(
         0.05, gt=0, description="joint move to this far above the seam start [m]"
+    )
+    min_seam_coverage: float = Field(
+        0.9,
+        gt=0,
+        le=1,
+        description="a true (simulated cell) or expected seam found over less of its length than this "
+        "fraction is reported as partial, and the run exits with status 7 (a warning)",
+    )
+    expected_seam_lengths: list[Annotated[Length, Field(gt=0)]] | None = Field(
+        None,
+        description="lengths of the seams the part has (from its drawing) [m], e.g. ['493 mm']: without "
+        "a simulated ground truth, the found seams (longest first) are compared with them",
     )
 
 
@@ -528,6 +542,10 @@ def evaluate(weld_path, gt, standoff: float) -> dict:
     return out
 
 
+class PartialSeamsWarning(JobWarning):
+    """The weld path was written, but a seam was found over only part of its length (exit status 7)."""
+
+
 def run(ctx) -> dict:
     """The whole job; returns the figures written into result.json."""
     from weldcell.plugins.scan_plan.report import write_report
@@ -576,8 +594,20 @@ def run(ctx) -> dict:
     standoff = ctx.stage_settings("path").standoff
     with ctx.step("metrics"):
         path.metrics = {"fitness": rec.fitness, **evaluate(path, gt, standoff)}
+        if gt:
+            coverage = seam_coverage(path, gt)
+        elif s.expected_seam_lengths:
+            coverage = expected_coverage(path, list(s.expected_seam_lengths))
+        else:
+            coverage = []
+        partial = partial_seams(coverage, s.min_seam_coverage)
+        if coverage:
+            path.metrics["coverage"] = coverage
+            path.metrics["seams_partial"] = len(partial)
         path.write(ctx.path("weld_path.json"))
     ctx.figures["metrics"] = path.metrics
+    for line in partial:
+        ctx.reporter.info(f"[yellow]PARTIAL {escape(line)}[/yellow]")
     doc = path.to_json()
     with ctx.step("export programs"):
         written = ctx.write_programs(doc, ctx.device("robot").program_settings())
@@ -600,8 +630,17 @@ def run(ctx) -> dict:
             notes.append(f"hand-eye (found by the reconstruction): {he_fit.describe()}")
         if refused is not None:
             notes.append(f"EXECUTION REFUSED by the safety gate: {refused.message}")
+        notes += [f"PARTIAL {line}" for line in partial]
         with ctx.step("report"):
             write_report(ctx, scans, rec, clean, extraction, path, gt, notes=notes)
     if refused is not None:
         raise refused
+    if partial:  # everything is written; the exit status says the path covers only part of a seam
+        ctx.figures["seams_partial"] = partial
+        raise PartialSeamsWarning(
+            f"{len(partial)} seam(s) found over less than {100 * s.min_seam_coverage:.0f} % of their "
+            f"length: " + "; ".join(partial),
+            "the weld path was written for the parts found; check the scan shows the whole joint (more "
+            "views along it), or lower [settings] min_seam_coverage to accept partial seams",
+        )
     return {"seams": len(path.seams), "captures": len(scans)}

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from weldcell.sdk.errors import DataError
 
-from .denoise import as_points
+from .cloud_numerics import as_points
 
 PLANES = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
 

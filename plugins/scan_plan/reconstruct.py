@@ -18,7 +18,7 @@ from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import invert, is_rigid, rotation_angle
 from weldcell.sdk.scan import PosedScan  # noqa: F401  (re-exported: the scan type of this stage)
 
-from .denoise import as_points, pca_normals, voxel_downsample
+from .cloud_numerics import as_points, pca_normals, voxel_downsample
 from .hand_eye_fit import MIN_OVERLAP, HandEyeFit, fit_hand_eye
 from .nearest import PointTree
 from .registration import IcpResult, linear_icp, point_to_plane_information

@@ -103,8 +103,8 @@ class BilateralSettings(Settings):
     )
 
 
-#: ``PointCloud.meta`` key of the :class:`~weldcell.plugins.scan_plan.denoise.NeighbourTable` the denoiser
-#: leaves for the seam stage (one shared neighbour search; used only for that very points array)
+#: ``PointCloud.meta`` key of the :class:`~weldcell.plugins.scan_plan.cloud_numerics.NeighbourTable` the
+#: denoiser leaves for the seam stage (one shared neighbour search; used only for that very points array)
 NEIGHBOURS_META = "scan_plan.neighbours"
 
 
@@ -120,12 +120,8 @@ class BilateralDenoiser:
         self.s = s
 
     def __call__(self, cloud: PointCloud) -> PointCloud:
-        from weldcell.plugins.scan_plan.denoise import (
-            bilateral_filter,
-            knn_table,
-            mean_spacing,
-            voxel_downsample,
-        )
+        from weldcell.plugins.scan_plan.cloud_numerics import knn_table, mean_spacing, voxel_downsample
+        from weldcell.plugins.scan_plan.denoise import bilateral_filter
 
         check_cloud(cloud, "cloud to denoise", min_points=10)
         P = cloud.points
@@ -222,7 +218,7 @@ def visible_from(
     if not front.any():
         return out
     if pixel is None:
-        from weldcell.plugins.scan_plan.denoise import mean_spacing
+        from weldcell.plugins.scan_plan.cloud_numerics import mean_spacing
 
         pixel = 5.0 * mean_spacing(P, sample=2000) / float(np.median(depth[front]))
     f = np.flatnonzero(front)

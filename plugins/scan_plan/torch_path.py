@@ -85,7 +85,9 @@ def torch_frames(
     x = _unit(x)
     y = np.cross(z, x)
     R = np.stack([x, y, z], axis=2)
-    tilt = Rotation.from_euler("xy", [work_angle, travel_angle]).as_matrix()  # R_x(work) @ R_y(travel)
+    # intrinsic X then Y: R_x(work) @ R_y(travel), so that both angles are exactly what they are set to
+    # (extrinsic "xy" leaned the torch asin(sin(travel) cos(work)) in travel: 6.58° for 7° at 20° work)
+    tilt = Rotation.from_euler("XY", [work_angle, travel_angle]).as_matrix()
     R = R @ tilt
     T = np.tile(np.eye(4), (len(seam_points), 1, 1))
     T[:, :3, :3] = R

@@ -4,6 +4,8 @@ frames, and a weld path the robot cannot reach."""
 
 from __future__ import annotations
 
+import json
+
 from pathlib import Path
 
 import numpy as np
@@ -220,3 +222,45 @@ rpy = [0, 0, 0]
     nearest = np.min(np.linalg.norm(tcp[:, None, :] - targets[None, :, :], axis=2))
     assert nearest > 0.1  # ... but no weld motion was sent: the torch never came near the seam
     assert not beyond(tcp).any()
+
+
+def test_seam_coverage_reports_a_seam_found_over_a_quarter_of_its_length():
+    from types import SimpleNamespace
+
+    from weldcell.hal.sim.workpieces import SeamTruth
+    from weldcell.plugins.scan_plan.coverage import expected_coverage, partial_seams, seam_coverage
+
+    k = 987
+    x = np.linspace(0.0, 0.493, k)
+    truth = SeamTruth(
+        "groove", "butt", np.column_stack([x, 0 * x, 0 * x]), [[0, 0, -1.0]] * k, [[1.0, 0, 0]] * k
+    )
+    found = np.column_stack([np.arange(0.1, 0.219, 0.004), np.full(30, 5e-4), np.zeros(30)])  # 4 mm nodes
+    path = SimpleNamespace(seams=[SimpleNamespace(points=found, closed=False, length=0.116)])
+    (c,) = seam_coverage(path, [("part", truth)])
+    assert c["length_mm"] == pytest.approx(493, abs=0.5) and c["found_mm"] == pytest.approx(119, abs=1)
+    (line,) = partial_seams([c], 0.9)
+    assert "found 119 of 493 mm (24 %)" in line  # within 2 mm of the found line: 116 mm + the ends
+    assert partial_seams([c], 0.2) == []
+    # without a ground truth: against the lengths the operator expects (a missing seam counts 0)
+    exp = expected_coverage(path, [0.493, 0.1])
+    assert [e["fraction"] for e in exp] == [pytest.approx(0.116 / 0.493, abs=1e-3), 0.0]
+
+
+@pytest.mark.slow
+def test_half_scanned_seam_is_reported_partial_and_the_run_exits_with_a_warning(tmp_path):
+    from weldcell.plugins.scan_plan.job import PartialSeamsWarning
+
+    # the region of interest keeps half of the 500 mm groove (it runs along y from -250 to +250 mm)
+    profile = small_profile(tmp_path, job="execute = false\nroi_max = [0.8, 0.0, 0.5]")
+    recorder = Recorder()
+    with pytest.raises(PartialSeamsWarning) as err:
+        run(profile, tmp_path, reporter=recorder)
+    assert err.value.exit_code == 7 and "of 500 mm" in err.value.message
+    run_dir = only_run_dir(tmp_path)
+    path = WeldPath.from_json(run_dir / "weld_path.json")  # everything was still written
+    (cov,) = path.metrics["coverage"]
+    assert 0.3 < cov["fraction"] < 0.6 and path.metrics["seams_partial"] == 1
+    assert any("PARTIAL" in msg for kind, msg in recorder.events if kind == "info")
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["status"] == "warning" and "of 500 mm" in result["error"]["message"]

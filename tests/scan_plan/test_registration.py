@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from weldcell.plugins.scan_plan.denoise import pca_normals, voxel_downsample
+from weldcell.plugins.scan_plan.cloud_numerics import pca_normals, voxel_downsample
 from weldcell.plugins.scan_plan.metrics import fitness
 from weldcell.plugins.scan_plan.registration import LazyNormals, NearestCache, linear_icp, point_to_plane_step
 from weldcell.sdk.errors import DataError

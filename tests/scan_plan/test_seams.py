@@ -7,12 +7,14 @@ import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial import cKDTree
-from weldcell.plugins.scan_plan.denoise import knn_table
+from weldcell.plugins.scan_plan.cloud_numerics import knn_table
 from weldcell.plugins.scan_plan.seams import (
     CONCAVE,
     CONVEX,
     GROOVE,
+    ChainSettings,
     SeamPolyline,
+    SeamSettings,
     _cut_end_corners,
     _orient,
     _Piece,
@@ -286,6 +288,18 @@ def test_bad_settings_raise_data_error(tee):
         extract_seams(P, normals=np.zeros((3, 3)))
     with pytest.raises(DataError, match="max_grow must be >= 0"):
         extract_seams(P, max_grow=-0.1)
+    with pytest.raises(DataError, match="unknown seam setting"):
+        extract_seams(P, min_seam_lenght=0.02)  # a misspelt setting is an error, not ignored
+
+
+def test_settings_object_and_keyword_overrides_give_the_same_seams():
+    P, N = v_groove()[:2]
+    s = SeamSettings(min_seam_length=0.03)
+    a = extract_seams(P, N, s)
+    b = extract_seams(P, N, min_seam_length=0.03)
+    assert len(a.seams) == len(b.seams) >= 1
+    assert all(np.array_equal(x.points, y.points) for x, y in zip(a.seams, b.seams, strict=True))
+    assert np.array_equal(extract_seams(P, N, s, t=60).edge_mask, extract_seams(P, N, t=60).edge_mask)
 
 
 # ----------------------------------------------------------------------------- speed-ups keep results
@@ -424,14 +438,16 @@ def chain_sparse(X: np.ndarray) -> list[SeamPolyline]:
         np.arange(n),
         np.full(n, CONCAVE, dtype=np.int8),
         np.tile([0.0, 0.0, -1.0], (n, 1)),
-        eps=2 * SPARSE_SPACING,
-        spacing=SPARSE_SPACING,
-        side_radius=2 * SPARSE_SPACING,
-        min_length=0.02,
-        smooth_window=5,
-        min_crease_angle=np.deg2rad(35),
-        refine=False,
-        max_gap=0.0,
+        ChainSettings(
+            eps=2 * SPARSE_SPACING,
+            spacing=SPARSE_SPACING,
+            side_radius=2 * SPARSE_SPACING,
+            min_length=0.02,
+            smooth_window=5,
+            min_crease_angle=np.deg2rad(35),
+            refine=False,
+            max_gap=0.0,
+        ),
     )
 
 
@@ -615,7 +631,7 @@ def _ring_scan(kind: str, decimation: int = 2) -> tuple[PointCloud, object]:
     above, 0.5 m from the seam's centre), merged with the true poses on a 1.5 mm voxel grid."""
     from weldcell.hal.sim.camera_model import RaycastCamera
     from weldcell.hal.sim.workpieces import make_workpiece
-    from weldcell.plugins.scan_plan.denoise import voxel_downsample
+    from weldcell.plugins.scan_plan.cloud_numerics import voxel_downsample
     from weldcell.sdk.geometry import frame_from_axes
 
     wp = make_workpiece(kind)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from weldcell.plugins.scan_plan.seams import SeamPolyline, extract_seams
-from weldcell.plugins.scan_plan.torch_path import plan_torch_path, slerp_quaternions, weld_path
+from weldcell.plugins.scan_plan.torch_path import plan_torch_path, slerp_quaternions, torch_frames, weld_path
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.weldpath import WeldPath
 
@@ -162,3 +162,31 @@ def test_bad_seams_and_settings_raise_data_error():
     along.normals[:] = [0, 1, 0]  # approach parallel to travel
     with pytest.raises(DataError, match="parallel"):
         plan_torch_path(along, standoff=0.01)
+
+
+@pytest.mark.parametrize("work_deg, travel_deg", [(20.0, -7.0), (45.0, 15.0), (-30.0, 10.0), (0.0, 0.0)])
+def test_work_and_travel_angles_are_exactly_the_settings(work_deg, travel_deg):
+    """AWS definitions: the travel angle is the torch axis' lean along the travel direction, the work
+    angle its angle about the travel axis; each must equal its setting whatever the other one is."""
+    s = np.linspace(0, 0.2, 20)
+    points = np.stack([s, 0.01 * np.sin(10 * s), np.zeros_like(s)], axis=1)
+    approach = np.tile([0.0, 0.0, -1.0], (20, 1))
+    travel = np.gradient(points, axis=0)
+    T = torch_frames(
+        points,
+        approach,
+        travel,
+        standoff=0.015,
+        work_angle=np.radians(work_deg),
+        travel_angle=np.radians(travel_deg),
+    )
+    for Ti, xi, ai in zip(T, travel, approach, strict=True):
+        t = xi - (xi @ ai) * ai
+        t /= np.linalg.norm(t)
+        z = Ti[:3, 2]
+        lean = np.degrees(np.arcsin(z @ t))  # along travel
+        across = z - (z @ t) * t  # the torch axis projected onto the plane across the seam
+        y = np.cross(ai, t)
+        work = np.degrees(np.arctan2(-(across @ y), across @ ai))
+        assert lean == pytest.approx(travel_deg, abs=1e-6)
+        assert work == pytest.approx(work_deg, abs=1e-6)

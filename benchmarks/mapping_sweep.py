@@ -1,0 +1,269 @@
+"""Cell 4 estimator sweep (paper 004 §II-B): key-frame ATE of the visual-inertial(-GNSS) estimator on
+several seeded routes of the simulated site, per configuration, on cached rendered sequences.
+
+    .venv/bin/python benchmarks/mapping_sweep.py --seeds 0 1 2 --length 60 --configs full no-gnss
+    .venv/bin/python benchmarks/mapping_sweep.py --list            # the configurations
+
+It drives the estimator directly (no map, detector or report: those are ``mapping_ate.py``), with the
+same sensors, mounts and models as profiles/cell4-map-sim.toml: ZED 2i colour + depth (decimated),
+BMI088-class IMU at 200 Hz with turn-on biases, u-blox M8T GNSS (standalone or RTK). Rendered frames
+are cached in ``--cache`` so that configurations are compared on the same images. Diagnostic
+configurations switch one error source off (``no-depth-noise``: noise-free depth) or one part of the
+estimator (``no-loop``, ``no-gnss``, ``imu-inflate-1``) to show where the error comes from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+T_BASE_CAM_RPY = (np.radians([-95.0, 0.0, -90.0]), [0.3, 0.0, 1.0])
+T_BASE_IMU_XYZ = [0.0, 0.0, 0.5]
+T_BASE_ANT_XYZ = [0.0, 0.0, 1.5]
+
+CONFIGS: dict[str, dict] = {
+    "full": {},
+    "no-gnss": {"estimator": {"use_gnss": False}},
+    "rtk": {"gnss": "rtk", "estimator": {"gnss_correlation_time": 1.0}},
+    "no-imu": {"estimator": {"use_imu": False}},
+    "no-loop": {"estimator": {"loop_closure": False}},
+    "no-loop-no-gnss": {"estimator": {"loop_closure": False, "use_gnss": False}},
+    "imu-inflate-1": {"imu_noise": {"inflate": 1.0}},
+    "links-1": {"estimator": {"links": 1, "use_gnss": False}},
+    "no-depth-noise": {"depth_noise": False},
+}
+
+
+@dataclass
+class Sequence:
+    seed: int
+    t: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray
+    T_world_cam: np.ndarray
+    K: object
+    imu: tuple
+    imu_bias: tuple
+    gnss: list
+    T_imu_cam: np.ndarray
+    T_imu_ant: np.ndarray
+
+
+def _mounts():
+    from weldcell.sdk.geometry import T_from_rpy
+
+    T_base_cam = T_from_rpy(*T_BASE_CAM_RPY)
+    T_base_imu = T_from_rpy([0.0, 0.0, 0.0], T_BASE_IMU_XYZ)
+    T_base_ant = T_from_rpy([0.0, 0.0, 0.0], T_BASE_ANT_XYZ)
+    return T_base_cam, T_base_imu, T_base_ant
+
+
+def make_sequence(
+    seed: int, length: float, decimation: int, fps: float, gnss_mode: str, depth_noise: bool, cache: Path
+) -> Sequence:
+    """Render (or load from ``cache``) one route of the site and sample its IMU and GNSS."""
+    from weldcell.hal.readings import Intrinsics
+    from weldcell.hal.sim.gnss_model import GnssModel, GnssSimulator
+    from weldcell.hal.sim.inertial import ImuModel, ImuSimulator
+    from weldcell.hal.sim.rgbd import RgbdCamera
+    from weldcell.hal.sim.site import RouteSettings, install_site
+    from weldcell.hal.sim.world import SimWorld
+
+    site = install_site(SimWorld([]), seed=seed)
+    site.set_route(RouteSettings(length=length, seed=seed))
+    route = site.route
+    T_base_cam, T_base_imu, T_base_ant = _mounts()
+
+    def kin(t):
+        R, v, a, w = route.kinematics(t)
+        return R, v, a, w, route.pos(np.clip(t, 0.0, route.duration))
+
+    imu = ImuSimulator(
+        ImuModel(gyro_turn_on_bias=0.005, accel_turn_on_bias=0.05),
+        kin,
+        T_base_imu,
+        seed + 4,
+        site.distance_to_steel,
+    )
+    ti, acc, gyr, _, truth = imu.samples_until(route.duration)
+
+    def ant(t):
+        return (route.pose(t) @ T_base_ant)[:3, 3]
+
+    gsim = GnssSimulator(GnssModel(mode=gnss_mode), ant, site.under_roof, site.distance_to_steel, seed + 5)
+    gnss = [g for g in gsim.samples_until(route.duration) if g["enu"] is not None]
+    t = np.arange(0.0, route.duration, 1.0 / fps)
+    Tc = np.array([route.pose(x) @ T_base_cam for x in t])
+    f = cache / f"seq_s{seed}_L{length:g}_d{decimation}_f{fps:g}_n{int(depth_noise)}.npz"
+    if f.is_file():
+        z = np.load(f)
+        rgb, depth = z["rgb"], z["depth"]
+        K = Intrinsics(*[int(v) for v in z["K"][:2]], *[float(v) for v in z["K"][2:]])
+    else:
+        cam = RgbdCamera("zed2i", site.world.meshes(), decimation=decimation, noise=depth_noise)
+        rng = np.random.default_rng(seed + 1)
+        rgbs, depths = [], []
+        for T in Tc:
+            d, c = cam.render_rgbd(T, rng=rng)
+            rgbs.append(c)
+            depths.append(d.depth.astype(np.float32))
+        rgb, depth = np.array(rgbs), np.array(depths)
+        K = cam.intrinsics
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez(f, rgb=rgb, depth=depth, K=np.array([K.width, K.height, K.fx, K.fy, K.cx, K.cy]))
+    T_imu_cam = np.linalg.inv(T_base_imu) @ T_base_cam
+    T_imu_ant = np.linalg.inv(T_base_imu) @ T_base_ant
+    return Sequence(
+        seed, t, rgb, depth, Tc, K, (ti, acc, gyr), (truth["b_g"], truth["b_a"]), gnss, T_imu_cam, T_imu_ant
+    )
+
+
+def run(seq: Sequence, cfg: dict) -> dict:
+    """The estimator over ``seq`` with the configuration's settings; ATE of the key frames."""
+    from weldcell.plugins.mapping.estimator import VioEstimator
+    from weldcell.plugins.mapping.frontend import OrbFrontEnd
+    from weldcell.plugins.mapping.interp import ate_rmse
+    from weldcell.plugins.mapping.settings import MapJobSettings
+
+    s = MapJobSettings.model_validate({k: cfg[k] for k in ("estimator", "frontend", "imu_noise") if k in cfg})
+    est = VioEstimator(s.estimator, OrbFrontEnd(s.frontend), seq.T_imu_cam, s.imu_noise, seq.T_imu_ant)
+    ti, acc, gyr = seq.imu
+    gi = 0
+    truth = {}
+    cpu_kf, cpu_fr = [], []
+    t0 = time.perf_counter()
+    for n, t in enumerate(seq.t):
+        m = ti <= t + 1e-9
+        est.add_imu(ti[m], acc[m], gyr[m])
+        while gi < len(seq.gnss) and seq.gnss[gi]["t"] <= t + 1e-9:
+            g = seq.gnss[gi]
+            est.add_gnss(g["t"], g["enu"], np.array([g["sigma_h"], g["sigma_h"], g["sigma_v"]]))
+            gi += 1
+        c0 = time.process_time()
+        res = est.process_frame(float(t), seq.rgb[n], seq.depth[n], seq.K, seq.T_world_cam[n])
+        (cpu_kf if res.keyframe is not None else cpu_fr).append(time.process_time() - c0)
+        if res.keyframe is not None:
+            truth[res.keyframe.index] = seq.T_world_cam[n]
+    wall = time.perf_counter() - t0
+    Tr = np.array([truth[k.index] for k in est.keyframes])
+    ate_smoother = ate_rmse(est.keyframe_trajectory()[1][:, :3, 3], Tr[:, :3, 3])[0]
+    if hasattr(est, "finalize"):
+        est.finalize()
+    tk, Tk = est.keyframe_trajectory()
+    ref = Tr[:, :3, 3]
+    ate, _ = ate_rmse(Tk[:, :3, 3], ref)
+    tm = {k: (1000 * float(np.mean(v)), 1000 * float(np.std(v))) for k, v in est.timing.items() if v}
+    return {
+        "ate_m": ate,
+        "ate_smoother_m": ate_smoother,
+        "keyframes": len(est.keyframes),
+        "lost": sum(e["kind"] == "lost" for e in est.events),
+        "loops": sum(e["kind"] == "loop" for e in est.events),
+        "timing_ms": tm,
+        "wall_s": wall,
+        "cpu_ms": {  # process time (all threads): independent of other jobs' load, unlike wall time
+            "tracking_frame": (1000 * float(np.mean(cpu_fr)), 1000 * float(np.std(cpu_fr))),
+            "keyframe": (1000 * float(np.mean(cpu_kf)), 1000 * float(np.std(cpu_kf))),
+            "all": 1000 * float(np.mean(cpu_fr + cpu_kf)),
+        },
+        "bias_g_err": float(np.abs(est.keyframes[-1].bias[3:] - seq.imu_bias[0][-1]).max()),
+    }
+
+
+def frontend_components(decimation: int) -> None:
+    """CPU time of ORB extraction and PnP (by projection / brute force) on rendered frames of the route
+    at ``decimation`` (1 = the ZED 2i's 1280x720), without rendering a whole sequence."""
+    from weldcell.hal.sim.rgbd import RgbdCamera
+    from weldcell.hal.sim.site import RouteSettings, install_site
+    from weldcell.hal.sim.world import SimWorld
+    from weldcell.plugins.mapping.frontend import OrbFrontEnd
+    from weldcell.plugins.mapping.settings import MapJobSettings
+
+    site = install_site(SimWorld([]), seed=0)
+    site.set_route(RouteSettings(length=60.0))
+    T_base_cam = _mounts()[0]
+    cam = RgbdCamera("zed2i", site.world.meshes(), decimation=decimation)
+    fe = OrbFrontEnd(MapJobSettings().frontend)
+    frames = []
+    for t in (30.0, 30.4, 30.8):
+        T = site.route.pose(t) @ T_base_cam
+        d, c = cam.render_rgbd(T, rng=1)
+        frames.append((T, d.depth, c))
+    K = cam.intrinsics
+    ex, gm, bm = [], [], []
+    for _ in range(3):
+        c0 = time.process_time()
+        f = [fe.extract(c, d, K) for _, d, c in frames]
+        ex.append((time.process_time() - c0) / 3)
+        c0 = time.process_time()
+        r1 = fe.relative_pose(f[0], f[1], K, np.linalg.inv(frames[0][0]) @ frames[1][0])
+        gm.append(time.process_time() - c0)
+        c0 = time.process_time()
+        r2 = fe.relative_pose(f[0], f[2], K)
+        bm.append(time.process_time() - c0)
+    print(
+        f"{K.width}x{K.height}: ORB {1000 * np.median(ex):.0f} ms ({len(f[0].pixels)} features), PnP by "
+        f"projection {1000 * np.median(gm):.0f} ms ({r1.inliers} inliers), brute force "
+        f"{1000 * np.median(bm):.0f} ms ({r2.inliers} inliers)  [CPU time]"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--length", type=float, default=60.0, help="route length [m]")
+    ap.add_argument("--decimation", type=int, default=4, help="camera decimation (1 = 1280x720)")
+    ap.add_argument("--fps", type=float, default=5.0)
+    ap.add_argument("--configs", nargs="+", default=["full", "no-gnss", "rtk"])
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/weldcell-mapping-cache"))
+    ap.add_argument("--list", action="store_true")
+    ap.add_argument("--components", action="store_true", help="front-end CPU per component, then stop")
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args()
+    if args.components:
+        frontend_components(args.decimation)
+        return
+    if args.list:
+        for k, v in CONFIGS.items():
+            print(f"{k:30s} {v}")
+        return
+    rows: dict = {}
+    for name in args.configs:
+        cfg = CONFIGS[name]
+        for seed in args.seeds:
+            seq = make_sequence(
+                seed,
+                args.length,
+                args.decimation,
+                args.fps,
+                cfg.get("gnss", "standalone"),
+                cfg.get("depth_noise", True),
+                args.cache,
+            )
+            r = run(seq, cfg)
+            rows.setdefault(name, {})[seed] = r
+            tm = "  ".join(f"{k} {m:.0f}±{s:.0f} ms" for k, (m, s) in r["timing_ms"].items())
+            c = r["cpu_ms"]
+            tm += (
+                f"  | CPU: frame {c['tracking_frame'][0]:.0f}±{c['tracking_frame'][1]:.0f} ms, "
+                f"key frame {c['keyframe'][0]:.0f}±{c['keyframe'][1]:.0f} ms, mean {c['all']:.0f} ms"
+            )
+            print(
+                f"{name:28s} seed {seed}  ATE {r['ate_m']:.4f} m (smoother alone {r['ate_smoother_m']:.4f})  "
+                f"kf {r['keyframes']}  lost {r['lost']}  loops {r['loops']}  bg err {r['bias_g_err']:.1e}  "
+                f"{tm}  wall {r['wall_s']:.0f} s",
+                flush=True,
+            )
+        a = [r["ate_m"] for r in rows[name].values()]
+        print(f"{name:28s} mean ATE {np.mean(a):.4f} m  max {np.max(a):.4f} m  ({len(a)} seeds)", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "rows": rows}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,315 @@
+"""The seam stage end to end: :func:`extract_seams` (eqs. 11-17 -> classes -> chained polylines) and
+:func:`chain_seams` (weldable points -> ordered, refined, resampled seams)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+from weldcell.sdk.errors import DataError
+
+from ..cloud_numerics import NeighbourTable
+from .candidates import classify_edges, point_normals
+from .chaining import _cluster_pieces, _end_directions, _Piece, bridge_pieces
+from .edges import _usable_table, edge_scores
+from .model import CONCAVE, GROOVE, WELDABLE, SeamExtraction, SeamPolyline, _as_points
+from .ordering import _orthogonal_to_travel, _smooth_approach, _smooth_positions, _straight
+from .refinement import (
+    _curved_wall_nodes,
+    _cut_end_corners,
+    _orient,
+    _refine_nodes,
+    _resample,
+    _trim_turning_ends,
+)
+from .settings import ChainSettings, SeamSettings
+from .tracing import grow_pieces
+
+
+def chain_seams(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    weld_idx: np.ndarray,
+    weld_labels: np.ndarray,
+    approach: np.ndarray,
+    cfg: ChainSettings,
+) -> list[SeamPolyline]:
+    """Cluster the weldable points and turn the clusters into ordered, resampled polylines.
+
+    Points are linked within ``cfg.eps`` when their approach directions differ by less than
+    ``max_approach_angle``; each connected component is ordered along the longest path of its
+    minimum spanning tree (closed when the path's ends are within ``2 eps``; open paths without the side
+    branches they fold back along) and binned at ``spacing`` (:func:`_cluster_pieces`).
+    Pieces whose ends are close (``max_gap``) and collinear (``max_gap_angle``) are chained across the
+    gap (:func:`bridge_pieces`). Each chain is snapped onto the side planes fitted within
+    ``side_radius`` (``refine``), resampled at ``spacing``, smoothed (quadratic Savitzky-Golay over
+    ``smooth_length`` or ``smooth_window`` nodes, whichever is longer; robust for the approach).
+    Chains where fewer than ``min_fit_fraction`` of the nodes show two distinct side planes are dropped
+    (noise on a flat surface), and open seams are trimmed to the fitted nodes. Curved and closed chains
+    (not within 1 % of a straight line) take their nodes and approach from quadric wall patches within
+    ``wall_radius`` (:func:`_curved_wall_nodes`; 0 disables): planes fit straight joints exactly, but
+    sit inside curved walls.
+    """
+    if len(weld_idx) < 3:
+        return []
+    pieces = _fitted_pieces(P, N, tree, _clusters(P, weld_idx, weld_labels, approach, cfg), cfg)
+    s = cfg
+    if s.max_grow > 0 and s.refine:
+        pieces = grow_pieces(
+            P,
+            N,
+            tree,
+            pieces,
+            spacing=s.spacing,
+            eps=s.eps,
+            side_radius=s.side_radius,
+            approach_radius=s.approach_radius,
+            min_crease_angle=min(s.min_crease_angle, s.grow_min_crease_angle),
+            max_length=s.max_grow,
+        )
+    if s.max_gap > 0 and s.refine:
+        pieces = bridge_pieces(
+            P,
+            N,
+            tree,
+            pieces,
+            max_gap=s.max_gap,
+            max_angle=s.max_gap_angle,
+            spacing=s.spacing,
+            side_radius=s.side_radius,
+            min_crease_angle=min(s.min_crease_angle, s.grow_min_crease_angle),
+            approach_radius=s.approach_radius,
+        )
+    seams: list[SeamPolyline] = []
+    for piece in sorted(pieces, key=lambda p: -len(p.X)):
+        seam = _polyline(P, N, tree, piece, cfg, len(seams))
+        if seam is not None:
+            seams.append(seam)
+    return seams
+
+
+def _clusters(
+    P: np.ndarray, weld_idx: np.ndarray, weld_labels: np.ndarray, approach: np.ndarray, cfg: ChainSettings
+) -> list[_Piece]:
+    """The weldable points linked within ``cfg.eps`` (approach directions agreeing), each component of
+    at least 5 points ordered into a piece (:func:`_cluster_pieces`), largest first."""
+    M = len(weld_idx)
+    X = P[weld_idx]
+    pairs = cKDTree(X).query_pairs(cfg.eps, output_type="ndarray")
+    if len(pairs):
+        agree = np.einsum("ij,ij->i", approach[pairs[:, 0]], approach[pairs[:, 1]])
+        pairs = pairs[agree > np.cos(cfg.max_approach_angle)]
+    i, j = pairs[:, 0], pairs[:, 1]
+    w = np.linalg.norm(X[i] - X[j], axis=1) + 1e-12
+    G = coo_matrix((w, (i, j)), shape=(M, M)).tocsr()
+    n_comp, comp = connected_components(G, directed=False)
+    G = G + G.T
+    mst = minimum_spanning_tree(G)
+    sizes = np.bincount(comp, minlength=n_comp)
+    big = np.flatnonzero(sizes >= 5)
+    order = np.argsort(comp, kind="stable")
+    members = np.split(order, np.cumsum(sizes)[:-1])
+    groups = [members[c] for c in big[np.argsort(-sizes[big], kind="stable")]]
+    raw = _cluster_pieces(X, approach, groups, G, mst, cfg.eps, cfg.spacing, weld_labels)
+    return [p for p in raw if p is not None]
+
+
+def _fitted_pieces(
+    P: np.ndarray, N: np.ndarray, tree: cKDTree, raw: list[_Piece], cfg: ChainSettings
+) -> list[_Piece]:
+    """The pieces snapped onto their side planes (``cfg.refine``; all nodes in one batch: one search, one
+    set of plane fits); pieces without two side planes along most of them are dropped, open ones
+    trimmed to their fitted nodes."""
+    if not (cfg.refine and raw):
+        return list(raw)
+    cuts = np.cumsum([len(p.X) for p in raw])[:-1]
+    fits = _refine_nodes(
+        P, N, tree, np.vstack([p.X for p in raw]), cfg.side_radius, cfg.approach_radius, cfg.min_crease_angle
+    )
+    pieces = []
+    for piece, fit in zip(raw, zip(*(np.split(a, cuts) for a in fits), strict=True), strict=True):
+        Xs, A_fit, ok, crease = fit
+        if ok.mean() < cfg.min_fit_fraction:  # no two distinct side planes along most of it: not a joint
+            continue
+        As = np.where(ok[:, None], A_fit, piece.A)
+        if not piece.closed:  # trim ends where the two side planes could not be fitted
+            good = np.flatnonzero(ok)
+            sl = slice(good[0], good[-1] + 1)
+            Xs, As, ok, crease = Xs[sl], As[sl], ok[sl], crease[sl]
+            sl = _trim_turning_ends(Xs)
+            Xs, As, ok, crease = Xs[sl], As[sl], ok[sl], crease[sl]
+            if len(Xs) < 3:
+                continue
+        pieces.append(_Piece(Xs, As, piece.closed, piece.labels, ok, crease))
+    return pieces
+
+
+def _polyline(
+    P: np.ndarray, N: np.ndarray, tree: cKDTree, piece: _Piece, cfg: ChainSettings, seam_id: int
+) -> SeamPolyline | None:
+    """One chained piece as a seam: curved walls fitted, smoothed, resampled at ``cfg.spacing``, ends
+    cut where smoothing overshot or the trace turned, approach orthogonal to travel and oriented; None
+    when it is shorter than ``cfg.min_length`` or of a class not in ``cfg.joints``."""
+    spacing = cfg.spacing
+    Xs, As, closed = piece.X, piece.A, piece.closed
+    ok = piece.ok if piece.ok is not None else np.ones(len(Xs), dtype=bool)
+    crease = piece.crease if piece.crease is not None else np.zeros(len(Xs))
+    curved = closed or len(Xs) < 3 or not _straight(Xs)
+    if cfg.refine and cfg.wall_radius > 0 and len(Xs) >= 3 and ok.any() and curved:
+        Xw, Aw, ok_w = _curved_wall_nodes(
+            P, N, tree, Xs, cfg.approach_radius, cfg.wall_radius, cfg.side_radius
+        )
+        use = ok & ok_w & (np.linalg.norm(Xw - Xs, axis=1) < cfg.side_radius / 6.0)
+        Xs = np.where(use[:, None], Xw, Xs)
+        As = np.where(use[:, None], Aw, As)
+    # smoothing window: smooth_length, but at most 1/8 of the seam (a quadratic fit over more of a
+    # small ring would shrink it)
+    window = max(int(cfg.smooth_window), int(round(cfg.smooth_length / spacing)) | 1)
+    L = float(np.linalg.norm(np.diff(Xs, axis=0), axis=1).sum())
+    w = max(int(cfg.smooth_window), min(window, int(L / (8.0 * spacing)) | 1))
+    As = _smooth_approach(As, ok, w, closed, curved)
+    Xr, Ar = _resample(Xs, As, spacing, closed)
+    Xr = _smooth_positions(Xr, w, closed)
+    Ar = _smooth_approach(Ar, np.ones(len(Ar), dtype=bool), w, closed, curved)
+    if not closed:
+        cut = _cut_overshoot(Xs, Xr, Ar, spacing)
+        if cut is None:
+            return None
+        Xr, Ar = cut
+    Xr, Ar = _resample(Xr, Ar, spacing, closed)  # smoothing moved the nodes: equal steps again
+    # open ends again: a hook the resampling straightened into a fold, or an L (a trace that turned)
+    for trim in () if closed else (_trim_turning_ends, _cut_end_corners):
+        sl = trim(Xr)
+        if sl != slice(0, len(Xr)):
+            Xr, Ar = _resample(Xr[sl], Ar[sl], spacing, closed)
+    ring = np.vstack([Xr, Xr[:1]]) if closed else Xr
+    length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
+    if length < cfg.min_length or len(Xr) < 2:
+        return None
+    Ar = _orthogonal_to_travel(Xr, Ar, closed)
+    Xr, Ar = _orient(Xr, Ar, closed)
+    if cfg.refine and ok.sum() >= 3:  # the included angle of the fitted side planes decides
+        joint = "groove" if np.pi - np.median(crease[ok]) < cfg.groove_max_angle else "concave"
+    else:
+        joint = "groove" if piece.labels[GROOVE] > piece.labels[CONCAVE] else "concave"
+    if joint not in cfg.joints:
+        return None
+    return SeamPolyline(seam_id, joint, Xr, Ar, bool(closed), length)
+
+
+def _cut_overshoot(
+    Xs: np.ndarray, Xr: np.ndarray, Ar: np.ndarray, spacing: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Smoothing must not lengthen an open seam, and its ends can still fold back: cut them (None when
+    fewer than 3 nodes are left)."""
+    end_len = max(0.01, 3 * spacing)
+    d0, d1 = _end_directions(Xs, spacing, end_len)
+    # only nodes near each end can overshoot it (a long seam that curves may pass behind the plane
+    # through its far end)
+    k_end = np.arange(len(Xr))
+    near0 = k_end < max(3, int(round(end_len / spacing)))
+    near1 = k_end >= len(Xr) - max(3, int(round(end_len / spacing)))
+    inside = ~(near0 & (np.einsum("ij,j->i", Xr - Xs[0], d0) > 0)) & ~(
+        near1 & (np.einsum("ij,j->i", Xr - Xs[-1], d1) > 0)
+    )
+    Xr, Ar = Xr[inside], Ar[inside]
+    if len(Xr) < 3:
+        return None
+    sl = _trim_turning_ends(Xr)
+    return Xr[sl], Ar[sl]
+
+
+def extract_seams(
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    settings: SeamSettings | None = None,
+    *,
+    neighbours: NeighbourTable | None = None,
+    viewpoints: np.ndarray | None = None,
+    **overrides: object,
+) -> SeamExtraction:
+    """Edge points (eqs. 11-17) and ordered weld seams of a cloud in metres.
+
+    ``settings`` is a :class:`SeamSettings`; keyword ``overrides`` replace its fields (e.g. ``t=60``),
+    so ``extract_seams(P, t=60, min_seam_length=0.02)`` reads as before the settings object.
+
+    Args:
+        points: (N, 3) cloud (ideally denoised and voxel down-sampled, spacing ~1-2 mm).
+        normals: optional (N, 3) normals; only their orientation (sign) is used, to orient the PCA
+            normals: pass them facing the sensor/outward. Without them the orientation heuristic of
+            :func:`point_normals` (``up``) is used.
+        m: minimum neighbourhood size (eq. 11). t: threshold on ``Tr(H)^3/Det(H)`` (eq. 16, >= 27).
+        sigma: Gaussian of eq. 17 in m (default: per-point std of neighbour distances, as the paper).
+        radius: r of eq. 11 in m (default ``radius_factor`` x median point spacing).
+        floor: noise floor added to H before eq. 16 (x median Tr(H)/3; 0 = as printed).
+        min_intensity: edge points also need ``I >= min_intensity`` (eq. 12; 0 disables).
+        joints: which classes become seams. min_crease_angle / groove_max_angle: see
+            :func:`classify_edges`. class_radius_factor: side-fit radius as a multiple of r.
+        cluster_eps: link distance of the clustering (default 2 r). spacing: seam resampling step
+            (default r). min_seam_length: shorter seams are dropped (m). smooth_window: nodes.
+        fit_radius: radius (m) of the two-side-plane fits that give the seam's approach direction
+            (default ``max(class_radius_factor * r, 8 mm)``: enough points for sub-degree planes); the
+            seam points are snapped with fits at ``class_radius_factor * r``.
+        max_gap: pieces of one seam whose ends are at most this far apart (m) and collinear are
+            chained across the gap (0 disables). max_grow: open seams are traced along their joint
+            beyond their ends by at most this much (m) per end, joining the pieces they reach
+            (:func:`grow_pieces`; 0 disables). smooth_length: smoothing window along the seam (m).
+        neighbours: optional :class:`~weldcell.plugins.scan_plan.cloud_numerics.NeighbourTable` of ``points``
+            (the denoising stage's shared search); replaces the KD-tree searches of eq. 11 and of the
+            normals when it reaches at least r.
+        viewpoints: optional (V, 3) camera positions of the scans (the job's ``meta["viewpoints"]``):
+            a concave crease counts only when both its sides face a camera at less than
+            ``max_incidence`` (rad) -- see :func:`classify_edges`.
+        wall_radius: radius (m) of the quadric wall patches that place the nodes and approach of curved
+            and closed seams (default 4 x ``fit_radius``, 32 mm; 0 keeps the side planes), see
+            :mod:`~weldcell.plugins.scan_plan.wall_quadrics`.
+    """
+    s = SeamSettings.of(settings, **overrides)
+    s.check()
+    P = _as_points(points, s.m)
+    es = edge_scores(
+        P,
+        m=s.m,
+        radius=s.radius,
+        radius_factor=s.radius_factor,
+        k_max=s.k_max,
+        sigma=s.sigma,
+        floor=s.floor,
+        min_intensity=s.min_intensity,
+        neighbours=neighbours,
+    )
+    I, score, r, tree = es.intensity, es.ratio, es.radius, es.tree
+    table = _usable_table(P, neighbours)
+    with np.errstate(invalid="ignore"):
+        edge = (score >= s.t) & (I >= s.min_intensity)
+    oriented = None
+    if normals is not None:
+        oriented = np.asarray(normals, dtype=float)
+        if oriented.shape != P.shape or not np.all(np.isfinite(oriented)):
+            raise DataError(
+                f"normals must be a finite {P.shape} array, got {oriented.shape}",
+                "pass one normal per point or normals=None",
+            )
+    N = point_normals(P, tree, 10, oriented, np.asarray(s.up, dtype=float), table)
+    labels = np.zeros(len(P), dtype=np.int8)
+    cand = np.flatnonzero(edge)
+    seams: list[SeamPolyline] = []
+    if len(cand):
+        lab, appr = classify_edges(
+            P,
+            N,
+            tree,
+            cand,
+            s.class_radius_factor * r,
+            min_crease_angle=s.min_crease_angle,
+            groove_max_angle=s.groove_max_angle,
+            viewpoints=viewpoints,
+            max_incidence=s.max_incidence,
+        )
+        labels[cand] = lab
+        keep = np.isin(lab, [WELDABLE[j] for j in s.joints])
+        seams = chain_seams(P, N, tree, cand[keep], lab[keep], appr[keep], s.chain(r))
+    params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
+    return SeamExtraction(edge, score, I, labels, seams, r, params)

@@ -1,0 +1,259 @@
+"""Refinement of seam nodes: side planes fitted on both sides of the joint (the node snapped onto
+their intersection line, the approach their bisector), quadric wall fits for curved walls, end trims
+and orientation."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..wall_quadrics import crease_point, tangent_planes
+from .model import (
+    BEHIND_TOL,
+    CONVEX_DROPPED,
+    MIN_INCLUDED_ANGLE,
+    THIRD_SURFACE,
+    TOE_INCLUDED,
+    TOE_RADIUS,
+    TOE_SHIFT,
+    WALL_MAX_POINTS,
+    WALL_MIN_CREASE,
+    _unit,
+)
+from .sides import _dot3, _fit_two_planes, _sides_at
+
+# ----------------------------------------------------------------------------- chaining
+
+
+def _resample(X: np.ndarray, A: np.ndarray, spacing: float, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    if closed:
+        X = np.vstack([X, X[:1]])
+        A = np.vstack([A, A[:1]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(X, axis=0), axis=1))])
+    L = s[-1]
+    if L <= 0:
+        return X[:1], A[:1]
+    n = max(int(round(L / spacing)), 1)
+    t = np.linspace(0.0, L, n + 1)
+    if closed:
+        t = t[:-1]
+    Xr = np.column_stack([np.interp(t, s, X[:, j]) for j in range(3)])
+    Ar = _unit(np.column_stack([np.interp(t, s, A[:, j]) for j in range(3)]))
+    return Xr, Ar
+
+
+def _refine_on_sides(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    radius: float,
+    min_crease_angle: float,
+    k: int = 256,
+    min_side_fraction: float = 0.2,
+    query: tuple[np.ndarray, np.ndarray] | None = None,
+    min_included_angle: float = MIN_INCLUDED_ANGLE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Snap seam nodes onto the intersection line of the two side planes fitted around them.
+
+    The planes are fitted to the (at most ``k`` nearest) cloud points within ``radius`` of each node.
+    Returns the moved nodes, the approach ``-(n_a + n_b)/|.|`` of the fitted planes, a mask of the
+    nodes where the fit was usable and the angle between the two plane normals (pi minus the included
+    angle of the joint). Usable: the crease angle is at least
+    ``min_crease_angle``, the included angle at least ``min_included_angle``, the points of each side lie
+    in front of the other side's plane (concave) and both sides hold at least ``min_side_fraction`` of
+    the points (a real joint has surface on both sides; the curled, noisy border of a scan has a few
+    points only on its "second side")."""
+    _, valid0, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
+    # planes n . (x - X) = d; points behind the other side's plane (a third surface) left out
+    na, da, nbv, db, ca, cb, valid = _fit_two_planes(Q, valid0, na, nbv, in_a, behind_tol=BEHIND_TOL * radius)
+    dropped = 1.0 - valid.sum(1) / np.maximum(valid0.sum(1), 1)
+    crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nbv), -1.0, 1.0))
+    ok = (ca >= 3) & (cb >= 3) & (np.minimum(ca, cb) >= min_side_fraction * (ca + cb))
+    ok &= (crease >= min_crease_angle) & (np.pi - crease >= min_included_angle)
+    ra, rb = _dot3(Q, na) - da[:, None], _dot3(Q, nbv) - db[:, None]
+    on_a = valid & (np.abs(ra) <= np.abs(rb))
+    on_b = valid & ~on_a
+    ok &= _mean_where(rb, on_a) + _mean_where(ra, on_b) > 0  # concave: the air is inside the V
+    A = np.stack([na, nbv], axis=1)  # (B, 2, 3)
+    r = np.stack([-da, -db], axis=1)  # signed distances of X from the two planes
+    AAt = np.einsum("bij,bkj->bik", A, A)
+    AAt[~ok] = np.eye(2)
+    lam = np.linalg.solve(AAt, r[..., None])[..., 0]
+    step = np.einsum("bij,bi->bj", A, lam)
+    step[~ok] = 0.0
+    too_far = np.linalg.norm(step, axis=1) > radius
+    step[too_far] = 0.0
+    return X - step, -_unit(na + nbv), ok & ~too_far, crease, dropped
+
+
+def _curved_wall_nodes(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    plane_radius: float,
+    wall_radius: float,
+    side_radius: float,
+    iterations: int = 2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seam nodes and approach directions of a curved joint from quadric wall patches
+    (:mod:`~weldcell.plugins.scan_plan.wall_quadrics`): the sides are split by the two planes fitted
+    within ``plane_radius``, each wall is fitted within ``wall_radius`` and the node moves onto the
+    intersection of the walls' tangent planes (twice: the second pass is centred on the moved node).
+    Returns the nodes, the approach ``-(n_a + n_b)`` of the tangent planes and a mask of the nodes
+    where both walls were fitted and the node moved by less than ``side_radius / 3``; elsewhere the
+    input node is kept."""
+    X = np.array(X, dtype=float, copy=True)
+    ok_all = np.ones(len(X), dtype=bool)
+    A = np.zeros_like(X)
+    Pt = np.ascontiguousarray(P.T)
+    for _ in range(iterations):
+        dist0, idx0 = tree.query(X, k=int(min(256, len(P))), workers=-1)
+        _, valid0, na, nb, in_a, Q = _sides_at(P, N, tree, X, plane_radius, 256, query=(dist0, idx0))
+        na, da, nb, db, ca, cb, _ = _fit_two_planes(
+            Q, valid0, na, nb, in_a, behind_tol=BEHIND_TOL * plane_radius
+        )
+        crease = np.arccos(np.clip(np.einsum("ij,ij->i", na, nb), -1.0, 1.0))
+        ok = (ca >= 3) & (cb >= 3) & (crease >= WALL_MIN_CREASE)
+        # as many neighbours as the wall patches hold: the density seen by the 256-nearest query
+        reach = float(np.median(dist0[:, -1]))
+        k = int(min(len(P), WALL_MAX_POINTS, max(256, 256 * (wall_radius / max(reach, 1e-9)) ** 2)))
+        dist, idx = tree.query(X, k=k, workers=-1)
+        Qw = tuple(Pt[j][idx] - X[:, j : j + 1] for j in range(3))
+        tp = tangent_planes(
+            Qw,
+            dist <= wall_radius,
+            na,
+            da,
+            nb,
+            db,
+            radius=wall_radius,
+            u_min=side_radius / 4.0,
+            band=2.0 * side_radius,
+            tol=side_radius / 12.0,
+        )
+        q = crease_point(tp)
+        ok &= tp.ok & (np.linalg.norm(q, axis=1) < side_radius / 3.0)
+        X[ok] += q[ok]
+        A = -_unit(tp.n_a + tp.n_b)
+        ok_all &= ok
+    return X, A, ok_all
+
+
+def _mean_where(v: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Row means (B,) of ``v`` (B, K) over ``mask`` (0 where a row has no member)."""
+    return np.where(mask, v, 0.0).sum(1) / np.maximum(mask.sum(1), 1)
+
+
+def _trim_turning_ends(X: np.ndarray, max_turn: float = np.deg2rad(30.0), max_nodes: int = 8) -> slice:
+    """Slice without the end nodes whose step turns by more than ``max_turn`` from the direction of the
+    seam a few nodes further in (an end that folds back or runs onto another edge)."""
+    a, b = 0, len(X)
+    cos = np.cos(max_turn)
+
+    def turned(u: np.ndarray, v: np.ndarray) -> bool:
+        return float(np.dot(u, v)) < cos * float(np.linalg.norm(u) * np.linalg.norm(v))
+
+    for _ in range(max_nodes):
+        if b - a < 8 or not turned(X[a + 1] - X[a], X[a + 6] - X[a + 3]):
+            break
+        a += 1
+    for _ in range(max_nodes):
+        if b - a < 8 or not turned(X[b - 1] - X[b - 2], X[b - 4] - X[b - 7]):
+            break
+        b -= 1
+    return slice(a, b)
+
+
+def _cut_end_corners(X: np.ndarray, max_turn: float = np.deg2rad(45.0), max_nodes: int = 10) -> slice:
+    """Slice without a short run at either end that meets the seam at a corner: where, within
+    ``max_nodes`` of the end, the direction turns by more than ``max_turn`` between the two-step chords
+    before and after a node (a trace that ran along the part's end before it found the joint: an L, not
+    a fold, which :func:`_trim_turning_ends` misses when the run is longer than its reference window).
+    Arcs turn by 2 x spacing / radius there: < 45 deg down to a radius of ~2.5 x spacing."""
+    n = len(X)
+    if n < 2 * max_nodes:
+        return slice(0, n)
+    cos = np.cos(max_turn)
+
+    def corner(idx: range) -> int | None:
+        for i in idx:
+            u, v = X[i] - X[i - 2], X[i + 2] - X[i]
+            if float(np.dot(u, v)) < cos * float(np.linalg.norm(u) * np.linalg.norm(v)):
+                return i
+        return None
+
+    a = corner(range(2, max_nodes))
+    b = corner(range(n - 3, n - max_nodes - 1, -1))
+    return slice(0 if a is None else a + 1, n if b is None else b)
+
+
+def _orient(
+    X: np.ndarray, A: np.ndarray, closed: bool, min_curl: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
+    """Deterministic travel direction, one convention for every piece of a curved seam.
+
+    Closed seams, and open ones that curve (the area swept about their centroid is at least
+    ``min_curl`` x length^2, e.g. an arc of more than ~15 deg of a pipe junction), run counter-clockwise
+    seen from the torch (looking along the mean approach), so the open pieces of a closed curve travel
+    the same way round as the whole loop would. Straight open seams run along their principal axis
+    (sign: largest component positive).
+    """
+    length = float(np.linalg.norm(np.diff(X, axis=0), axis=1).sum())
+    c = X - X.mean(axis=0)
+    area = 0.5 * np.cross(c, np.roll(c, -1, axis=0)).sum(axis=0)  # closed by the chord when open
+    axis = -_unit(A.mean(axis=0))
+    about = float(area @ axis)
+    if closed or abs(about) >= min_curl * length**2:
+        flip = about < 0
+    else:
+        u = np.linalg.svd(c, full_matrices=False)[2][0]
+        u = u * np.sign(u[np.argmax(np.abs(u))])
+        flip = float((X[-1] - X[0]) @ u) < 0
+    return (X[::-1].copy(), A[::-1].copy()) if flip else (X, A)
+
+
+def _refine_nodes(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    side_radius: float,
+    approach_radius: float,
+    min_crease_angle: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_refine_on_sides` at two scales: the approach, crease angle and the usable-node mask from
+    the side planes within ``approach_radius`` (large: many points, sub-degree normals; by symmetry the
+    bisector of two planes fitted to a curved wall is still the local one), the position from those
+    within ``side_radius`` where that fit is usable too (small: planes fitted to a strongly curved wall
+    over a large radius sit inside it and pull the intersection line inwards). Two exceptions: an acute
+    node whose two positions disagree (curved walls, the Y-pipe's toe) takes its position from planes
+    within ``TOE_RADIUS * side_radius``; a node whose approach-radius fit saw a third surface (a narrow
+    face) takes the approach of the ``side_radius`` planes."""
+    workers = -1 if len(X) >= 64 else 1  # threads cost more than they save on a few nodes (a trace step)
+    query = tree.query(X, k=int(min(256, len(P))), workers=workers)  # one search for both scales
+    X2, A, ok, crease, dropped = _refine_on_sides(
+        P, N, tree, X, approach_radius, min_crease_angle, query=query
+    )
+    if approach_radius > side_radius:
+        Xs, As, ok_s, _, dropped_s = _refine_on_sides(
+            P, N, tree, X, side_radius, min_crease_angle, query=query
+        )
+        # a convex edge whose noise leaves a small concave lip (a pipe's end rim): most of the points
+        # lie behind the other side's plane even at the side radius, where a narrow face's third
+        # surface (the lap joint's upper plate, 12-15 % at the approach radius) is out of reach
+        ok &= dropped_s <= CONVEX_DROPPED
+        both = ok & ok_s
+        # an acute crease whose two position estimates disagree has curved walls (the Y-pipe's toe): its
+        # plane intersection at side_radius still lies inside the curve: position from smaller planes
+        toe = both & (np.linalg.norm(Xs - X2, axis=1) > TOE_SHIFT) & (np.pi - crease < TOE_INCLUDED)
+        X2 = np.where(both[:, None], Xs, X2)
+        if toe.any():
+            i = np.flatnonzero(toe)
+            Xt, _, ok_t, _, _ = _refine_on_sides(P, N, tree, X[i], TOE_RADIUS * side_radius, min_crease_angle)
+            X2[i[ok_t]] = Xt[ok_t]
+        # a third surface within the approach radius (a narrow face, e.g. a thin lap plate's edge): the
+        # planes of the smaller radius see less of what lies beyond it
+        A = np.where((both & (dropped > THIRD_SURFACE))[:, None], As, A)
+    return X2, A, ok, crease

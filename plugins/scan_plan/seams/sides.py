@@ -1,0 +1,171 @@
+"""The two sides of a crease: a 2-means split of the neighbour normals and the two side planes
+fitted to the points on either side (their intersection line and bisector place a seam node)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..cloud_numerics import (
+    largest_eigvec,
+    masked_covariance,
+    smallest_eigvec,
+)
+from .model import BEHIND_TOL, CORE_FRACTION, SMALL_BATCH, THIRD_SURFACE, _unit
+
+
+def _dot3(U: tuple[np.ndarray, ...], v: np.ndarray) -> np.ndarray:
+    """Row-wise dot products (B, K) of component arrays ``U`` = (x, y, z), each (B, K), with ``v`` (B, 3)."""
+    return U[0] * v[:, :1] + U[1] * v[:, 1:2] + U[2] * v[:, 2:]
+
+
+def _wsum3(w: np.ndarray, U: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Weighted row sums (B, 3) of component arrays ``U`` with weights ``w`` (B, K)."""
+    return np.stack([np.einsum("bk,bk->b", w, u) for u in U], axis=1)
+
+
+def two_sides(nbr_normals: np.ndarray, valid: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, ...]:
+    """Split each row of neighbour normals (B, K, 3) into two sides (2-means on the unit sphere).
+
+    Starts from the principal axis of the normal scatter; returns ``(n_a, n_b, in_a)`` with side
+    normals (B, 3) and the membership (B, K) of side a.
+    """
+    U = tuple(np.ascontiguousarray(nbr_normals[..., j]) for j in range(3))
+    return _two_sides(U, valid, iterations)
+
+
+def _two_sides(U: tuple[np.ndarray, ...], valid: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, ...]:
+    """:func:`two_sides` on the normals' components ``U`` = (x, y, z), each (B, K)."""
+    w = valid.astype(float)
+    C, cnt = masked_covariance(U, w)
+    mean = _wsum3(w, U) / np.maximum(cnt, 1)[:, None]
+    e = np.linalg.eigh(C)[1][..., 2] if len(C) <= SMALL_BATCH else largest_eigvec(C)
+    in_a = _dot3(U, e) > (mean * e).sum(1)[:, None]
+    for _ in range(iterations):
+        na = _unit(_wsum3(w * in_a, U))
+        nbv = _unit(_wsum3(w * ~in_a, U))
+        in_a = _dot3(U, na) >= _dot3(U, nbv)
+    return na, nbv, in_a
+
+
+def _sides_at(
+    P: np.ndarray,
+    N: np.ndarray,
+    tree: cKDTree,
+    X: np.ndarray,
+    radius: float,
+    k: int,
+    query: tuple[np.ndarray, np.ndarray] | None = None,
+):
+    """Neighbours (at most ``k`` nearest, at least 4, within ``radius``) of the points ``X`` and their
+    2-means split by normal. Returns ``idx, valid, n_a, n_b, in_a, Q`` with ``Q`` the neighbour offsets
+    from X as components (x, y, z). ``query``: a (dist, idx) k-nearest result to reuse."""
+    k = int(min(k, len(P)))
+    dist, idx = tree.query(X, k=k, workers=-1) if query is None else query
+    valid = dist <= radius
+    valid[:, :4] = True
+    if idx.size < len(P):  # a few nodes (e.g. one step of a trace): gather rows, don't transpose the cloud
+        Ng, Pg = N[idx], P[idx]
+        Nc = tuple(np.ascontiguousarray(Ng[..., j]) for j in range(3))
+        Q = tuple(Pg[..., j] - X[:, j : j + 1] for j in range(3))
+    else:  # per-coordinate gathers from transposed copies (4x faster than (B, K, 3) gathers)
+        Nt, Pt = np.ascontiguousarray(N.T), np.ascontiguousarray(P.T)
+        Nc = tuple(Nt[j][idx] for j in range(3))
+        Q = tuple(Pt[j][idx] - X[:, j : j + 1] for j in range(3))
+    na, nb_, in_a = _two_sides(Nc, valid)
+    return idx, valid, na, nb_, in_a, Q
+
+
+def fit_two_planes(
+    Q: np.ndarray, valid: np.ndarray, n_a: np.ndarray, n_b: np.ndarray, in_a: np.ndarray, iterations: int = 3
+) -> tuple[np.ndarray, ...]:
+    """Fit two planes to each row of points (B, K, 3) by alternating PCA fits and re-assignment of
+    every point to the closer plane (2-plane k-means). Starts from the normal split ``in_a``; plane
+    normals keep the orientation of ``n_a`` / ``n_b``. Returns ``(n_a, d_a, n_b, d_b, count_a, count_b)``
+    with planes ``n . x = d``."""
+    U = tuple(np.ascontiguousarray(Q[..., j]) for j in range(3))
+    return _fit_two_planes(U, valid, n_a, n_b, in_a, iterations)[:6]
+
+
+def _fit_two_planes(
+    U: tuple[np.ndarray, ...],
+    valid: np.ndarray,
+    n_a: np.ndarray,
+    n_b: np.ndarray,
+    in_a: np.ndarray,
+    iterations: int = 3,
+    behind_tol: float | None = None,
+) -> tuple[np.ndarray, ...]:
+    """:func:`fit_two_planes` on the points' components ``U`` = (x, y, z), each (B, K); also returns the
+    mask of the points the final planes were fitted to.
+
+    ``behind_tol`` (m): fit a *concave* crease. A point assigned to one side that lies more than this
+    behind the other side's plane, or further than this from its own side's plane, is left out of the
+    next fit: it belongs to a third surface beyond a convex edge (e.g. the upper plate's top behind the
+    6 mm edge face of a lap joint), which would tilt the side plane it was assigned to. Rows where more
+    than ``THIRD_SURFACE`` of the points were left out are fitted again, starting from the points within
+    ``CORE_FRACTION`` of the radius (``behind_tol / BEHIND_TOL``): the normal split alone puts both
+    plates' tops on one side, and a plane through both sits between them."""
+    fit = _fit_planes_from(U, valid, valid, n_a, n_b, in_a, iterations, behind_tol, trim=False)
+    if behind_tol is None:
+        return fit
+    i = np.flatnonzero(fit[6].sum(1) < (1.0 - THIRD_SURFACE) * valid.sum(1))
+    fit = (*fit[:6], valid)
+    if not len(i):
+        return fit
+    core = (CORE_FRACTION * behind_tol / BEHIND_TOL) ** 2
+    near = valid[i] & (U[0][i] ** 2 + U[1][i] ** 2 + U[2][i] ** 2 <= core)
+    enough = near.sum(1) >= 8
+    i, near = i[enough], near[enough]
+    if not len(i):
+        return fit
+    Ui = tuple(u[i] for u in U)
+    again = _fit_planes_from(Ui, valid[i], near, n_a[i], n_b[i], in_a[i], iterations + 1, behind_tol)
+    fit = tuple(f.copy() for f in fit)
+    for whole, part in zip(fit, again, strict=True):
+        whole[i] = part
+    return fit
+
+
+def _kept(valid: np.ndarray, ra: np.ndarray, rb: np.ndarray, tol: float) -> np.ndarray:
+    """The points (of ``valid``) within ``tol`` of the nearer of two planes (signed distances ``ra``,
+    ``rb``) and not more than ``tol`` behind the other one."""
+    in_a = np.abs(ra) <= np.abs(rb)
+    own, other = np.where(in_a, ra, rb), np.where(in_a, rb, ra)
+    return valid & (np.abs(own) <= tol) & (other >= -tol)
+
+
+def _fit_planes_from(
+    U: tuple[np.ndarray, ...],
+    valid: np.ndarray,
+    use: np.ndarray,
+    n_a: np.ndarray,
+    n_b: np.ndarray,
+    in_a: np.ndarray,
+    iterations: int,
+    behind_tol: float | None,
+    trim: bool = True,
+) -> tuple[np.ndarray, ...]:
+    """:func:`_fit_two_planes` whose first fit uses only the points ``use`` (a subset of ``valid``); with
+    ``trim``, later fits only the points :func:`_kept` by ``behind_tol``. The last item returned is the
+    mask of the points kept by the final planes (``valid`` when ``behind_tol`` is None)."""
+    out, kept = [], valid
+    for _ in range(iterations):
+        out = []
+        for mask, ref in ((use & in_a, n_a), (use & ~in_a, n_b)):
+            w = mask.astype(float)
+            C, cnt = masked_covariance(U, w)
+            c = _wsum3(w, U) / np.maximum(cnt, 1)[:, None]
+            n = np.linalg.eigh(C)[1][..., 0] if len(C) <= SMALL_BATCH else smallest_eigvec(C)
+            n[np.einsum("ij,ij->i", n, ref) < 0] *= -1.0
+            n[cnt < 3] = ref[cnt < 3]
+            out.append((n, np.einsum("ij,ij->i", n, c), cnt))
+        (na, da, _), (nb, db, _) = out
+        ra = _dot3(U, na) - da[:, None]
+        rb = _dot3(U, nb) - db[:, None]
+        in_a = np.abs(ra) <= np.abs(rb)
+        if behind_tol is not None:
+            kept = _kept(valid, ra, rb, behind_tol)
+            use = kept if trim else valid
+    (na, da, ca), (nb, db, cb) = out
+    return na, da, nb, db, ca, cb, kept
