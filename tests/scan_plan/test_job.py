@@ -5,7 +5,6 @@ frames, and a weld path the robot cannot reach."""
 from __future__ import annotations
 
 import json
-
 from pathlib import Path
 
 import numpy as np
