@@ -356,8 +356,9 @@ def gesture_scan(ctx, T_flange_camera: np.ndarray) -> list[PosedScan]:
                 except SafetyError as e:
                     refused += 1
                     if refused == 1 or refused % 50 == 0:
-                        ctx.reporter.info(
-                            f"[yellow]gesture target refused by the safety gate: {e.message}[/yellow]"
+                        ctx.reporter.info(  # expected while following a hand: the gate keeps the arm safe
+                            "gesture target refused by the safety gate (expected now and then: the camera "
+                            f"stays where it is and follows the next target): {e.message}"
                         )
         if len(scans) < s.min_captures:
             raise JobError(

@@ -182,10 +182,12 @@ def test_joint_move_and_egm_speed_servo(ctrl, pc_port):
         np.testing.assert_allclose(np.radians(jt[0]), q, atol=1e-6)
         p0 = arm.state().T_base_tcp[:3, 3]
         arm.speed_linear(np.array([0.0, 0.05, -0.02, 0, 0, 0]), accel=0.5, duration=0.05)  # starts EGM
-        t_end = time.monotonic() + 0.3
-        while time.monotonic() < t_end:
+        t0 = time.monotonic()
+        # at least 0.3 s of servoing and 20 EGM exchanges (a loaded machine slows the 250 Hz peer down)
+        while time.monotonic() < t0 + 0.3 or (ctrl.egm.corrections <= 20 and time.monotonic() < t0 + 5):
             arm.speed_linear(np.array([0.0, 0.05, -0.02, 0, 0, 0]), accel=0.5, duration=0.05)
             time.sleep(0.02)
+        servoed = time.monotonic() - t0
         time.sleep(0.08)
         moved = arm.state().T_base_tcp[:3, 3] - p0
         assert ctrl.egm.corrections > 20  # EgmSensor messages answered the feedback
@@ -193,7 +195,7 @@ def test_joint_move_and_egm_speed_servo(ctrl, pc_port):
             moved / np.linalg.norm(moved), np.array([0, 5, -2]) / np.linalg.norm([0, 5, 2]), atol=0.02
         )
         v = np.linalg.norm([0.05, 0.02])
-        assert 0.5 * v * 0.3 < np.linalg.norm(moved) < v * (0.3 + 0.05 + 0.05)
+        assert 0.5 * v * 0.3 < np.linalg.norm(moved) < v * (servoed + 0.05 + 0.05)
         arm.stop()
         assert ctrl.ctrl.mci_running is False
         # a RAPID move after servoing
