@@ -55,7 +55,7 @@ _TINY = 1e-9  # m: a step this short cannot be subdivided further
 
 
 class KinematicModel(Protocol):
-    """What the gate needs from a robot model (see :mod:`weldcell.hal.sim.kinematics`).
+    """What the gate needs from a robot model (see :mod:`weldcell.hal.kinematics`).
 
     Optional, used when present: ``jacobian(q)`` or ``fk_jacobian(q)`` (continuous tracking),
     ``joint_speed_limits`` (rad/s), ``max_tcp_rot_speed`` (rad/s), ``joint_lever_bounds()``,
@@ -273,7 +273,7 @@ class SafetyGate:
             raise SafetyError(
                 f"the {m.name} kinematic model has no Jacobian, so the gate cannot follow the joints along "
                 "the motion",
-                "give the model a jacobian(q) method (see weldcell.hal.sim.kinematics.RobotModel)",
+                "give the model a jacobian(q) method (see weldcell.hal.kinematics.RobotModel)",
             )
         return m.fk(q), m.jacobian(q)
 

@@ -272,7 +272,7 @@ def profiles_validate(files: tuple[Path, ...]) -> None:
             if e.fix:
                 console.print(f"  [bold]fix:[/bold] {escape(e.fix)}")
             continue
-        devices = ", ".join(f"{r}={s.name}" for r, (s, _) in resolved["devices"].items())
+        devices = ", ".join(f"{r}={s.name}" for r, (s, _) in resolved.devices.items())
         out.print(f"[green]✓[/green] {f}  job={loaded.profile.job.name}  devices: {devices or '-'}")
     if failed:
         console.print(f"{failed} of {len(files)} profile(s) invalid")

@@ -35,7 +35,7 @@ from weldcell.sdk import artifacts, secrets
 from weldcell.sdk.errors import DeviceError, JobError, SafetyError, UsageError, WeldcellError
 from weldcell.sdk.geometry import T_from_rpy
 from weldcell.sdk.plugins import PluginManager
-from weldcell.sdk.profile import LoadedProfile, Mount, load_profile, validate_profile
+from weldcell.sdk.profile import LoadedProfile, Mount, ResolvedProfile, load_profile, validate_profile
 from weldcell.sdk.settings import with_defaults
 
 RESULT_SCHEMA = "weldcell/run-result@1"
@@ -255,7 +255,7 @@ class RunContext:
     def __init__(
         self,
         loaded: LoadedProfile,
-        resolved: dict[str, Any],
+        resolved: ResolvedProfile,
         pm: PluginManager,
         run_dir: Path,
         reporter: Reporter,
@@ -267,7 +267,7 @@ class RunContext:
         self.pm = pm
         self.run_dir = run_dir
         self.reporter = reporter
-        self.settings = resolved["job"]
+        self.settings = resolved.job
         self.devices: dict[str, Any] = {}
         self.shared: dict[str, Any] = {}
         self.timings: dict[str, float] = {}
@@ -287,12 +287,12 @@ class RunContext:
         if self._open_steps and role not in self._open_steps[-1]:
             self._open_steps[-1].append(role)
         if role not in self._stages:
-            spec, settings = self.resolved["stages"][role]
+            spec, settings = self.resolved.stages[role]
             self._stages[role] = spec.factory(settings)
         return self._stages[role]
 
     def stage_settings(self, role: str) -> Any:
-        return self.resolved["stages"][role][1]
+        return self.resolved.stages[role][1]
 
     def device(self, role: str) -> Any:
         """An open device by role; a clear error when the profile has none."""
@@ -337,8 +337,8 @@ class RunContext:
         that robot). A program the safety gate refuses is not written: the refusal is kept in
         ``figures["programs_refused"]`` and told to the operator. Returns the files written."""
         written = []
-        for spec in self.resolved["exporters"]:
-            given = self.resolved["exporter_settings"].get(spec.name)
+        for spec in self.resolved.exporters:
+            given = self.resolved.exporter_settings.get(spec.name)
             settings = with_defaults(spec.settings, given, cell or {}) if spec.settings else given
             try:
                 if spec.files is not None:
@@ -435,7 +435,7 @@ class RunContext:
             roles = self._open_steps.pop()
         dt = time.perf_counter() - t0
         self.timings[name] = self.timings.get(name, 0.0) + dt
-        plugins = [self.resolved["stages"][r][0].name for r in roles if r in self.resolved["stages"]]
+        plugins = [self.resolved.stages[r][0].name for r in roles if r in self.resolved.stages]
         used = {"plugins": plugins} if plugins else {}
         self.state.set_step(name, status="done", seconds=round(dt, 4), finished=_now(), **used)
         self.redo.discard(name)
@@ -449,11 +449,11 @@ def provenance(ctx: RunContext) -> dict[str, Any]:
     """Profile, plugin versions, settings and timings of a run, for result.json."""
     used: dict[str, Any] = {}
     reg = ctx.pm.registry
-    spec = ctx.resolved["job_spec"]
+    spec = ctx.resolved.job_spec
     used[f"job:{spec.name}"] = reg.entry("job", spec.name).provider
-    for role, (s, _) in ctx.resolved["devices"].items():
+    for role, (s, _) in ctx.resolved.devices.items():
         used[f"device:{role}:{s.name}"] = reg.entry("device", s.name).provider
-    for role, (s, _) in ctx.resolved["stages"].items():
+    for role, (s, _) in ctx.resolved.stages.items():
         used[f"stage:{role}:{s.name}"] = reg.entry("stage", s.name).provider
     try:
         version = md.version("weldcell")
@@ -480,8 +480,8 @@ def settings_with_references(ctx: RunContext) -> dict[str, Any]:
     """The run's settings as used, with every ``${env:NAME}`` value written as its reference."""
     out = {
         "job": ctx.settings.model_dump(mode="json") if ctx.settings is not None else {},
-        "stages": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["stages"].items()},
-        "devices": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved["devices"].items()},
+        "stages": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved.stages.items()},
+        "devices": {r: s.model_dump(mode="json") for r, (_, s) in ctx.resolved.devices.items()},
         "cell": ctx.profile.cell.model_dump(mode="json"),
     }
     for key, written in getattr(ctx.loaded, "secrets", {}).items():
@@ -505,7 +505,7 @@ def settings_with_references(ctx: RunContext) -> dict[str, Any]:
     return secrets.redact_obj(out)
 
 
-def prepare(profile_path: str | Path, pm: PluginManager) -> tuple[LoadedProfile, dict[str, Any]]:
+def prepare(profile_path: str | Path, pm: PluginManager) -> tuple[LoadedProfile, ResolvedProfile]:
     """Load and fully validate a profile (nothing is opened)."""
     loaded = load_profile(profile_path)
     resolved = validate_profile(loaded, pm.registry, extra_checks=pm.check_profile)
@@ -527,7 +527,7 @@ def new_run_dir(loaded: LoadedProfile, runs_dir: str | Path | None = None) -> Pa
 def open_devices(ctx: RunContext, stack: contextlib.ExitStack) -> None:
     """Create and activate every device of the profile; closed by ``stack`` in reverse order."""
     p = ctx.profile
-    for role, (spec, settings) in ctx.resolved["devices"].items():
+    for role, (spec, settings) in ctx.resolved.devices.items():
         entry = p.devices[role]
         dctx = DeviceContext(
             role=role,
@@ -597,7 +597,7 @@ def _run_job(profile_path, pm, run_dir, runs_dir, reporter, overrides, redo):
         run = new_run_dir(loaded, runs_dir)
     ctx = RunContext(loaded, resolved, pm, run, reporter or Reporter(), redo=redo)
     _check_resume(ctx, profile_path)
-    spec = resolved["job_spec"]
+    spec = resolved.job_spec
     attempts = ctx.state.data.setdefault("attempts", [])
     attempts.append({"started": _now(), "redo": sorted(ctx.redo)})
     ctx.state.save()

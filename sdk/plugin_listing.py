@@ -113,7 +113,7 @@ def device_report(pm: PluginManager, out: Console, profile: Path | None) -> int:
 
     loaded, resolved = prepare(profile, pm)
     code = 0
-    for role, (spec, settings) in resolved["devices"].items():
+    for role, (spec, settings) in resolved.devices.items():
         if spec.probe is None:
             out.print(f"  {role}: {spec.name}: [dim]no reachability probe[/dim]")
             continue

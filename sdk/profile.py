@@ -13,12 +13,14 @@ from __future__ import annotations
 import os
 import re
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pydantic import Field, ValidationError
 from weldcell.sdk.cell import CellSettings
+from weldcell.sdk.descriptors import DeviceSpec, ExporterSpec, JobSpec, StageSpec
 from weldcell.sdk.errors import ProfileError, WeldcellError
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length
@@ -341,17 +343,52 @@ def _dist(registry, category: str, name: str) -> str | None:
     return entry(category, name).provider.distribution if entry else None
 
 
-def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict[str, Any]:
+_OLD_KEYS = ("job_spec", "job", "devices", "stages", "exporters", "exporter_settings")
+
+
+@dataclass(frozen=True)
+class ResolvedProfile:
+    """What :func:`validate_profile` found: the plugins a profile chose, with their validated settings.
+
+    ``job_spec``/``job``: the job's descriptor and its settings object; ``devices`` and ``stages``:
+    ``{role: (spec, settings)}`` (devices as written in the profile, stages for every stage role of
+    the job, the job's default plugin where the profile names none); ``exporters``: the exporters'
+    descriptors in the profile's order; ``exporter_settings``: ``{exporter name: settings}``.
+    Frozen: a job that runs another job as a phase derives its view with :func:`dataclasses.replace`.
+    """
+
+    job_spec: JobSpec
+    job: Settings
+    devices: dict[str, tuple[DeviceSpec, Settings]] = field(default_factory=dict)
+    stages: dict[str, tuple[StageSpec, Settings]] = field(default_factory=dict)
+    exporters: list[ExporterSpec] = field(default_factory=list)
+    exporter_settings: dict[str, Settings] = field(default_factory=dict)
+
+    def __getitem__(self, key: str) -> Any:
+        """Deprecated: the dict access of earlier versions (``resolved["stages"]``); use the attributes."""
+        if key not in _OLD_KEYS:
+            raise KeyError(key)
+        warnings.warn(
+            f'resolved["{key}"] is deprecated; use resolved.{key} (weldcell.sdk.profile.ResolvedProfile)',
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(self, key)
+
+
+def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> ResolvedProfile:
     """Check a loaded profile against the installed plugins.
 
-    Returns the validated settings objects: ``{"job": JobSettings, "devices": {role: (spec, settings)},
-    "stages": {role: (spec, settings)}, "exporters": [spec]}``. Raises :class:`ProfileError` with
-    every problem found. ``extra_checks(loaded)`` adds plugins' own checks
+    Returns the plugins chosen and their validated settings (:class:`ResolvedProfile`). Raises
+    :class:`ProfileError` with every problem found. ``extra_checks(loaded)`` adds plugins' own checks
     (:meth:`weldcell.sdk.plugins.PluginManager.check_profile`).
     """
     p = loaded.profile
     problems: list[tuple[tuple[str, ...], str]] = []
-    resolved: dict[str, Any] = {"devices": {}, "stages": {}, "exporters": []}
+    devices: dict[str, tuple[Any, Any]] = {}
+    stages: dict[str, tuple[Any, Any]] = {}
+    exporters: list[Any] = []
+    exporter_settings: dict[str, Any] = {}
 
     def settings_for(spec, values: dict, key: tuple[str, ...]):
         try:
@@ -365,8 +402,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
     except WeldcellError as e:
         problems.append((("job", "name"), f"{e.message}; {e.fix}" if e.fix else e.message))
         raise _profile_error(loaded, problems) from None
-    resolved["job_spec"] = job
-    resolved["job"] = settings_for(job, p.job.settings, ("job", "settings"))
+    job_settings = settings_for(job, p.job.settings, ("job", "settings"))
 
     roles = {r.role: r for r in job.devices}
     for role, entry in p.devices.items():
@@ -378,7 +414,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
             except WeldcellError as e:
                 problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
                 continue
-            resolved["devices"][role] = (spec, settings_for(spec, entry.settings, (*key, "settings")))
+            devices[role] = (spec, settings_for(spec, entry.settings, (*key, "settings")))
             continue
         if role not in roles:
             problems.append(
@@ -409,7 +445,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
             problems.append(
                 ((*key, "mount", "parent"), f"'{entry.mount.parent}' names no device of this profile")
             )
-        resolved["devices"][role] = (spec, settings)
+        devices[role] = (spec, settings)
     for role, r in roles.items():
         if role not in p.devices and not r.optional:
             problems.append(
@@ -440,23 +476,22 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
         except WeldcellError as e:
             problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
             continue
-        resolved["stages"][role] = (
+        stages[role] = (
             spec,
             settings_for(spec, entry.settings if entry else {}, (*key, "settings")),
         )
 
-    resolved["exporter_settings"] = {}
     for i, name in enumerate(p.output.exporters):
         try:
             spec = registry.get("exporter", name)
             spec.check_available(_dist(registry, "exporter", name))
-            resolved["exporters"].append(spec)
+            exporters.append(spec)
         except WeldcellError as e:
             problems.append(
                 (("output", "exporters", str(i)), f"{e.message}; {e.fix}" if e.fix else e.message)
             )
             continue
-        resolved["exporter_settings"][name] = settings_for(
+        exporter_settings[name] = settings_for(
             spec, p.output.exporter_settings.get(name, {}), ("output", "exporter_settings", name)
         )
     for name in p.output.exporter_settings:
@@ -480,4 +515,4 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> dict
 
     if problems:
         raise _profile_error(loaded, problems)
-    return resolved
+    return ResolvedProfile(job, job_settings, devices, stages, exporters, exporter_settings)

@@ -59,7 +59,7 @@ class HandEyeStage(Protocol):
 
     ``measure(points, predicted=None, seed=0)`` returns a measurement with the feature position in
     the camera frame; ``solve(samples, config, ...)`` returns a
-    :class:`weldcell.plugins.handeye.result.HandEyeResult` (``weldcell/hand-eye@1``).
+    :class:`weldcell.sdk.handeye_files.HandEyeResult` (``weldcell/hand-eye@1``).
     """
 
     def measure(self, points: np.ndarray, predicted: np.ndarray | None = None, seed: int = 0) -> Any: ...

@@ -10,12 +10,12 @@ import time
 
 import numpy as np
 from weldcell.hal.interfaces import DepthCamera, DisplacementSensor, GestureSensor, Gnss, Imu, LaserProjector
+from weldcell.hal.kinematics import RobotModel
 from weldcell.hal.readings import DepthFrame, Displacement, GnssFix, HandsFrame, ImuReading, Intrinsics  # noqa: F401
 from weldcell.hal.robot import Robot, RobotMotionSettings
 from weldcell.hal.safety import SafetyGate, servo_flange_pose
 from weldcell.hal.sim.flange import FlangeGeometry, flange_mesh, posed_mesh
 from weldcell.hal.sim.hands import HandScript
-from weldcell.hal.sim.kinematics import RobotModel
 from weldcell.hal.sim.laser_model import PRESETS, CouplingError, LaserModel, LaserSpec
 from weldcell.hal.sim.trajectory import TimedTrajectory
 from weldcell.hal.sim.world import SimWorld

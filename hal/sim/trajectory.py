@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from weldcell.hal.sim.kinematics import trapezoid_position, trapezoid_time
+from weldcell.hal.kinematics import trapezoid_position, trapezoid_time
 from weldcell.sdk.geometry import interpolate_poses, rotation_angle
 
 

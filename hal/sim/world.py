@@ -1,6 +1,9 @@
 """The simulated cell's shared world: the workpieces, the frame tree and the simulated clock.
 
-Simulated devices of one run share one :class:`SimWorld` (through the run's ``shared`` dict).
+Simulated devices of one run share one :class:`SimWorld` (through the run's ``shared`` dict, under
+:data:`weldcell.hal.sim.WORLD_KEY`): device factories build it with :func:`shared_world`; jobs and
+stages that compare against the simulated truth read it with :func:`weldcell.hal.sim.world_of` (None on
+hardware).
 The world frame is the cell's fixed frame; each robot registers its base (its mount) and a live
 flange frame ``<role>.flange``; a camera mounted on ``<role>.flange`` follows the robot.
 Fixtures (:data:`FIXTURES`, e.g. a fixed ISO 9409-1 flange plate a flange-mounted camera calibrates
@@ -16,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from weldcell.hal.sim import WORLD_KEY
 from weldcell.hal.sim.flange import plate_workpiece
 from weldcell.hal.sim.workpieces import Workpiece, make_workpiece, workpiece_parameters
 from weldcell.sdk.errors import DataError
@@ -147,3 +151,21 @@ class SimWorld:
             for s in w.seams_in_world():
                 out.append((f"{i}:{w.kind}", s))
         return out
+
+
+def shared_world(ctx) -> SimWorld:
+    """The run's simulated world, built once from the profile's ``[sim]`` section on first use.
+
+    For simulated device factories (``ctx`` a :class:`~weldcell.sdk.jobs.DeviceContext`): every
+    simulated device of the run gets the same world. Sensors on a robot ``base`` with no arm in the cell
+    stand on the simulated site (a mobile robot's base)."""
+    if WORLD_KEY not in ctx.shared:
+        w = SimWorld.from_section(ctx.profile.profile.sim, seed=ctx.seed)
+        devs = ctx.profile.profile.devices.values()
+        on_base = any(e.mount.parent == "base" for e in devs)
+        if on_base and not any(e.plugin.startswith("robot.") for e in devs):
+            from weldcell.hal.sim.site import install_site
+
+            install_site(w, seed=ctx.seed)
+        ctx.shared[WORLD_KEY] = w
+    return ctx.shared[WORLD_KEY]

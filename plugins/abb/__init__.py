@@ -19,8 +19,8 @@ def _factory(settings, ctx):
         from weldcell.plugins.abb.adapter import ABBRobot
     except ImportError as e:
         raise MissingExtraError(f"device '{NAME}'", e.name or "abb_robot_client", "abb") from None
+    from weldcell.hal.kinematics import get_model
     from weldcell.hal.safety import SafetyGate
-    from weldcell.hal.sim.kinematics import get_model
 
     gate = SafetyGate(ctx.safety, model=get_model(settings.model))
     return ABBRobot(settings, name=ctx.role, gate=gate, dry_run=ctx.dry_run)

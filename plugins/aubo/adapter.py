@@ -251,7 +251,7 @@ class AuboRobot(Robot):
 
 def make_aubo(settings: AuboSettings, ctx: Any) -> AuboRobot:
     """Device factory: the gate uses the cell's limits and the ``settings.model`` kinematics."""
-    from weldcell.hal.sim.kinematics import get_model
+    from weldcell.hal.kinematics import get_model
 
     gate = SafetyGate(getattr(ctx, "safety", None), model=get_model(settings.model))
     return AuboRobot(

@@ -47,7 +47,7 @@ class ProgramSettings(Settings):
     )
     robot_model: str | None = Field(
         None,
-        description="robot model (weldcell.hal.sim.kinematics, e.g. 'ur5', 'abb-irb2600'): every "
+        description="robot model (weldcell.hal.kinematics, e.g. 'ur5', 'abb-irb2600'): every "
         "motion is checked through the safety gate with it before the program is written",
     )
     safety: SafetyLimits = Field(default_factory=SafetyLimits, description="the cell's motion limits")
@@ -186,7 +186,7 @@ def check_plan(plan: ProgramPlan, s: ProgramSettings) -> None:
     naming the seam and move) when the gate refuses one. No-op without a robot model."""
     if not s.robot_model:
         return
-    from weldcell.hal.sim.kinematics import get_model
+    from weldcell.hal.kinematics import get_model
 
     model = get_model(s.robot_model)
     check_motions(plan.motions, SafetyGate(s.safety, model), plan.T_flange_tcp, s.accel, _labels(plan))

@@ -212,7 +212,7 @@ class FrankaRobot(Robot):
 
 def make_franka(settings: FrankaSettings, ctx: Any) -> FrankaRobot:
     """Device factory: the gate uses the cell's limits and the ``settings.model`` kinematics."""
-    from weldcell.hal.sim.kinematics import get_model
+    from weldcell.hal.kinematics import get_model
 
     try:
         model = get_model(settings.model)

@@ -36,14 +36,15 @@ def weldcell_register_stages(register) -> None:
 @hookimpl
 def weldcell_register_jobs(register) -> None:
     from weldcell.plugins.handeye import job
+    from weldcell.sdk.calibration import CALIBRATE_JOB, CalibrateSettings
 
     register(
         JobSpec(
-            name="calibrate",
+            name=CALIBRATE_JOB,
             kind="job",
             summary="hand-eye calibration of a depth camera fixed in the cell (scans of the robot's flange) "
             "or on the flange (scans of a fixed ISO 9409-1 plate), online",
-            settings=job.CalibrateSettings,
+            settings=CalibrateSettings,
             run=job.run,
             devices=(
                 DeviceRole("robot", "robot", "the arm whose flange is scanned (or that carries the camera)"),

@@ -292,8 +292,8 @@ def board_poses(samples: list, s: dict, metrics: dict) -> np.ndarray:
     calibrated from the same photos with ``calibrate_intrinsics``). A photo without the board is a
     row of NaN named in ``metrics["board_not_found"]`` (the caller drops it with its robot pose).
     ``s``: calibrate()'s settings (``board``, ``intrinsics``, ``calibrate_intrinsics``)."""
-    from weldcell.plugins.handeye.result import sample_id
     from weldcell.sdk.errors import UsageError
+    from weldcell.sdk.handeye_files import sample_id
 
     imgs = [smp.image for smp in samples if smp.T_cam_target is None and smp.image is not None]
     intr = None

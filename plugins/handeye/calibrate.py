@@ -24,8 +24,6 @@ from weldcell.plugins.handeye import classical, diagnostics
 from weldcell.plugins.handeye.circle import PAPER_E_D, PAPER_E_R, PAPER_K_MAX, PAPER_RADIUS, ransac_circle
 from weldcell.plugins.handeye.featurefit import fit_with_unknown_point
 from weldcell.plugins.handeye.iterative import iterative_pool
-from weldcell.plugins.handeye.pointfit import robust_point_fit, scaled_svd_fit
-from weldcell.plugins.handeye.result import CONFIGS, HandEyeResult, HandEyeSample, config_name, sample_id
 from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
 from weldcell.plugins.handeye.verification import (
     ConsensusVerifier,
@@ -36,6 +34,8 @@ from weldcell.plugins.handeye.verification import (
 from weldcell.sdk.cloud import UNIT_SCALE, read_cloud
 from weldcell.sdk.errors import DataError, UsageError
 from weldcell.sdk.geometry import invert, rotation_angle
+from weldcell.sdk.handeye_files import CONFIGS, HandEyeResult, HandEyeSample, config_name, sample_id
+from weldcell.sdk.pointfit import robust_point_fit, scaled_svd_fit
 
 FLANGE_METHODS = ("flange", "flange-svd", "flange-iterative")
 METHODS = FLANGE_METHODS + classical.HAND_EYE_METHODS + classical.ROBOT_WORLD_METHODS

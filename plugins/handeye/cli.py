@@ -59,7 +59,7 @@ def detect_layout(path: Path) -> str:
 
 
 def read_data(path: Path, layout: str = "auto", units: str | None = None, quaternion: str = "auto"):
-    """Samples of any supported layout as a :class:`~weldcell.plugins.handeye.samples_io.SampleSet`."""
+    """Samples of any supported layout as a :class:`~weldcell.sdk.handeye_files.SampleSet`."""
     from weldcell.plugins.handeye import samples_io as io
 
     layout = detect_layout(path) if layout == "auto" else layout
@@ -408,10 +408,9 @@ def hand_eye(
 ) -> None:
     """Hand-eye calibration of DATA_DIR; writes the transform to -o and prints a summary."""
     from weldcell.plugins.handeye.report import summary_lines, write_offline_report
-    from weldcell.plugins.handeye.result import sample_id
-    from weldcell.plugins.handeye.samples_io import write_result
     from weldcell.plugins.handeye.stages import FlangeHandEye
     from weldcell.sdk.cli import out
+    from weldcell.sdk.handeye_files import sample_id, write_result
 
     if flange_model is not None and not flange_model.is_file():
         raise UsageError(f"flange model not found: {flange_model}", "give an STL/PCD/PLY file of the flange")
@@ -552,6 +551,6 @@ def _verification_sample(ss, stage, index: int | None):
         else read_cloud(smp.cloud, units=smp.meta.get("cloud_units", "m"), frame="camera").points
     )
     m = stage.measure(pts, seed=index)
-    from weldcell.plugins.handeye.result import sample_id
+    from weldcell.sdk.handeye_files import sample_id
 
     return m.face, smp.T_base_flange, sample_id(smp, index)

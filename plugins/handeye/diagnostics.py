@@ -8,6 +8,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.handeye_files import MIN_MEDIAN_DISTANCE, check_units  # noqa: F401 (re-exported)
 
 
 def check_finite(name: str, arr: np.ndarray) -> None:
@@ -19,46 +20,6 @@ def check_finite(name: str, arr: np.ndarray) -> None:
             f"{name} has NaN or infinite values in samples {np.flatnonzero(bad).tolist()[:10]}",
             "drop those samples (failed flange detection or robot read-out) and run again",
         )
-
-
-#: nothing a cell records sits within 1 cm of its frame's origin on median (a camera's minimum range, a
-#: flange never at the robot base's origin): below it, metres were read as millimetres
-MIN_MEDIAN_DISTANCE = 0.01
-
-
-def check_units(name: str, points: np.ndarray, units: str = "m", max_range: float = 20.0) -> None:
-    """Refuse points that cannot be metres, both ways: a camera or robot coordinate beyond ``max_range``
-    m (millimetres read as metres), a median distance from the origin under 1 cm (metres read as
-    millimetres), and columns where some samples are ~1000x the others (a mm/m mix in one data set)."""
-    P = np.asarray(points, float).reshape(-1, 3)
-    norms = np.linalg.norm(P, axis=1)
-    if units == "m" and np.any(norms > max_range):
-        big = np.flatnonzero(norms > max_range)
-        if len(big) == len(P):
-            raise DataError(
-                f"{name} is up to {norms.max():.4g} units from the origin; that is millimetres, not metres",
-                "declare units 'mm' (the reader scales to metres) or divide by 1000",
-            )
-        raise DataError(
-            f"{name}: samples {big.tolist()[:10]} are ~1000x farther than the others (mixed mm and m)",
-            "convert those samples to metres (divide by 1000) or re-export them in one unit",
-        )
-    med = float(np.median(norms)) if len(norms) else 0.0
-    if units == "m" and 0 < med < MIN_MEDIAN_DISTANCE:
-        raise DataError(
-            f"{name} lie within {med * 1e3:.3g} mm of the origin on median (span "
-            f"{np.ptp(P, axis=0).max() * 1e3:.3g} mm): the values look like metres read as millimetres, a "
-            "unit problem before a motion problem",
-            "declare units 'm' (the values are already metres)",
-        )
-    if med > 0:
-        ratio = norms / med
-        odd = np.flatnonzero((ratio > 100) | (ratio < 0.01))
-        if len(odd):
-            raise DataError(
-                f"{name}: samples {odd.tolist()[:10]} differ from the median distance by >100x (mixed units)",
-                "convert every sample to one unit (metres) before calibrating",
-            )
 
 
 def point_spread(points: np.ndarray) -> dict:

@@ -218,13 +218,18 @@ def read_model_points(path: str | Path, n_points: int = 30000) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"flange model not found: {path}", "check the path")
+    from weldcell.sdk.cloudfile import quiet_native_output
+
     if path.suffix.lower() in (".stl", ".obj", ".off"):
-        mesh = o3d.io.read_triangle_mesh(str(path))
+        with quiet_native_output() as said:  # Open3D's own warning must not print before our error
+            mesh = o3d.io.read_triangle_mesh(str(path))
         if len(mesh.triangles) == 0:
-            raise DataError(f"{path}: mesh has no triangles", "export the flange model again")
+            why = f" (the reader said: {said[0]})" if said else ""
+            raise DataError(f"{path}: mesh has no triangles{why}", "export the flange model again")
         o3d.utility.random.seed(0)
         return np.asarray(mesh.sample_points_uniformly(n_points).points)
-    pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
+    with quiet_native_output():
+        pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
     return np.asarray(pc.points)
 
 

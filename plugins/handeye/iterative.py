@@ -20,9 +20,9 @@ from math import comb
 from typing import Literal
 
 import numpy as np
-from weldcell.plugins.handeye.pointfit import rigid_fit_batch, scaled_svd_fit
 from weldcell.plugins.handeye.verification import Cost, Verifier, compensate, translation_cost
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.pointfit import rigid_fit_batch, scaled_svd_fit
 
 
 @dataclass

@@ -18,80 +18,16 @@ RUN_DIR``), the report and, in the simulated cell, the error against the camera'
 from __future__ import annotations
 
 import numpy as np
-from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
+from weldcell.hal.sim import true_camera_mount, world_of
 from weldcell.plugins.handeye.featurefit import fit_with_unknown_point, rotation_diversity, translation_sigma
-from weldcell.plugins.handeye.pointfit import scaled_svd_fit
-from weldcell.plugins.handeye.result import HandEyeSample, finite_json
-from weldcell.plugins.handeye.samples_io import write_result, write_samples
 from weldcell.plugins.handeye.stages import predicted_p_cam
+from weldcell.sdk.calibration import CalibrateSettings
 from weldcell.sdk.cloud import PointCloud, read_cloud, write_cloud
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import T_from_rpy, frame_from_axes, invert, pose_error
-from weldcell.sdk.settings import Settings
-from weldcell.sdk.units import Angle, Length
-
-Vec3 = tuple[Length, Length, Length]
-
-
-class CalibrateSettings(Settings):
-    """Settings of the online hand-eye calibration job."""
-
-    box_min: Vec3 = Field(
-        description="lower corner of the box the flange (eye-in-hand: the camera) visits, base frame [m]"
-    )
-    box_max: Vec3 = Field(description="upper corner of that box, robot base frame [m]")
-    n_poses: int = Field(30, ge=4, le=500, description="calibration poses planned")
-    max_tilt: Angle = Field(
-        0.3,
-        ge=0,
-        le=1.2,
-        description="largest random tilt of the flange away from facing the camera (eye-in-hand: of the "
-        "camera away from facing the feature), about each of its x and y axes [rad] (§3.1: 0.3)",
-    )
-    max_spin: Angle = Field(
-        0.3, ge=0, le=3.1416, description="largest random turn about the flange (camera) axis [rad]"
-    )
-    face_toward: Vec3 | None = Field(
-        None,
-        description="point the flange faces (eye-in-hand: the camera looks at), robot base frame [m]; "
-        "default: the camera's nominal mount in the profile (eye-in-hand: feature_prior)",
-    )
-    feature_prior: Vec3 | None = Field(
-        None,
-        description="eye-in-hand: rough position of the fixed feature (the face centre of the flange plate "
-        "the camera looks at), robot base frame, e.g. by tape measure [m]; the job estimates the exact one",
-    )
-    min_rotation: Angle = Field(
-        0.1,
-        ge=0,
-        le=1.5,
-        description="eye-in-hand: the first min_poses planned poses must turn the camera at least this much "
-        "(rms) about every axis, else the feature cannot be told from the camera offset [rad]",
-    )
-    seed: int | None = Field(None, description="seed of the pose plan; default: the cell's seed")
-    min_poses: int = Field(8, ge=4, description="the job may stop only after this many flange centres")
-    stop_at_target: bool = Field(
-        True,
-        description="stop once Algorithm 1's cost (eye-in-hand: the fit's predicted error) reaches "
-        "e_required",
-    )
-    verification_scan: bool = Field(
-        True,
-        description="eye-on-base: scan the flange at the box centre first (the "
-        "verification cloud of the ICP metric, eq. 13)",
-    )
-    min_points: int = Field(200, ge=10, description="a scan with fewer valid points has no flange")
-    reconnects: int = Field(2, ge=0, description="reconnection attempts when the camera drops")
-    save_clouds: bool = Field(True, description="keep every scan (cropped to the stage's box) in captures/")
-
-    @model_validator(mode="after")
-    def _box(self) -> CalibrateSettings:
-        for axis, lo, hi in zip("xyz", self.box_min, self.box_max, strict=True):
-            if lo > hi:
-                raise ValueError(f"box_min.{axis} ({lo}) must not exceed box_max.{axis} ({hi})")
-        return self
-
+from weldcell.sdk.handeye_files import HandEyeSample, finite_json, write_result, write_samples
+from weldcell.sdk.pointfit import scaled_svd_fit
 
 # -- planning ------------------------------------------------------------------------------------
 
@@ -188,19 +124,13 @@ def plan_in_hand(s: CalibrateSettings, T_flange_camera: np.ndarray, seed: int) -
 
 def ground_truth(ctx, config: str = "eye-on-base") -> np.ndarray | None:
     """The true ``T_base_camera`` (eye-in-hand: ``T_flange_camera``) in the simulated cell (None on
-    hardware)."""
-    world = ctx.shared.get("sim.world")
-    camera = ctx.devices.get("camera")
-    if world is None or not hasattr(camera, "T_world_camera"):
-        return None
-    if config == "eye-in-hand":
-        return np.asarray(camera.T_parent_camera, float)
-    return invert(world.T_world("robot.base")) @ camera.T_world_camera
+    hardware): :func:`weldcell.hal.sim.true_camera_mount`."""
+    return true_camera_mount(ctx, config)
 
 
 def feature_truth(ctx) -> np.ndarray | None:
     """The true face centre of the simulated cell's fixed flange plate in the robot base frame."""
-    world = ctx.shared.get("sim.world")
+    world = world_of(ctx)
     plates = [] if world is None else [w for w in world.workpieces if w.kind == "iso9409-plate"]
     if not plates:
         return None
@@ -539,7 +469,16 @@ def run(ctx) -> dict:
                 feed(rec)
             else:
                 notes.append(f"pose {i}: {rec['status']}: {rec['reason']}")
-                if i not in done:
+                if i not in done and rec["status"] == "refused":  # the gate keeps the robot in reach and box
+                    why = (
+                        "expected, as above"
+                        if any(": refused: " in n for n in notes[:-1])
+                        else "expected: the plan spans the whole pose box; the safety gate refuses a "
+                        "pose beyond the robot's reach or the cell's workspace and the job calibrates from "
+                        "the others"
+                    )
+                    ctx.reporter.info(f"pose {i} left out ({why}): {rec['reason']}")
+                elif i not in done:
                     ctx.reporter.info(f"[yellow]pose {i} {rec['status']}: {rec['reason']}[/yellow]")
             advance(
                 i + 1, len(poses), f"{len(ok_recs)} centres, {tracker.cost_name} {tracker.cost * 1e3:.3g} mm"

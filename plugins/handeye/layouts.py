@@ -39,11 +39,10 @@ import re
 from pathlib import Path
 
 import numpy as np
-from weldcell.plugins.handeye.result import HandEyeSample
-from weldcell.plugins.handeye.samples_io import SampleSet, _guess_length_units
 from weldcell.sdk.cloud import UNIT_SCALE
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_quat
+from weldcell.sdk.handeye_files import HandEyeSample, SampleSet, guess_length_units
 
 QUATERNION_ORDERS = ("auto", "xyzw", "wxyz")
 #: a face more than this far from facing the camera cannot be scanned (cos 80 deg)
@@ -139,7 +138,7 @@ def check_quaternion_order(
     saw (see the module docstring): with ``normals`` (the scanned face normals, camera frame) within
     :data:`MAX_NORMAL_ANGLE` of them in every pose, else facing the camera (within 80 deg). Returns the
     order and notes; DataError when the order given (or both) disagrees."""
-    from weldcell.plugins.handeye.pointfit import scaled_svd_fit
+    from weldcell.sdk.pointfit import scaled_svd_fit
 
     if len(p_cam) < 3:
         raise DataError(f"{len(p_cam)} poses; at least 3 are needed", "record more poses")
@@ -208,8 +207,8 @@ def read_aubo_folder(folder: str | Path, quaternion: str = "auto", units: str | 
     idx = [b[0] for b in blocks]
     rob = np.array([b[1] for b in blocks])
     cam = np.array([b[2] for b in blocks])
-    u_rob = units or _guess_length_units(rob[:, :3], "the p_robot positions")
-    u_cam = units or _guess_length_units(cam, "the p_camera centres")
+    u_rob = units or guess_length_units(rob[:, :3], "the p_robot positions")
+    u_cam = units or guess_length_units(cam, "the p_camera centres")
     notes = [
         f"ancorasir-aubo layout: {len(blocks)} poses from data.txt; p_robot in {u_rob}, p_camera in {u_cam}"
     ]
@@ -281,7 +280,7 @@ def read_rwhe_folder(folder: str | Path, units: str | None = None) -> SampleSet:
             f"{f}: {rows.shape[1]} numbers a line", "write each pose as 16 numbers (4x4 row-major)"
         )
     T = rows.reshape(-1, 4, 4)
-    u = units or _guess_length_units(T[:, :3, 3], "the robot positions")
+    u = units or guess_length_units(T[:, :3, 3], "the robot positions")
     T[:, :3, 3] *= UNIT_SCALE[u]
     images = sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT)
     if len(images) != len(T):

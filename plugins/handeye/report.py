@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from weldcell.plugins.handeye.result import HandEyeResult
 from weldcell.sdk.artifacts import save_figure, write_text
 from weldcell.sdk.geometry import T_to_rpy, pose_error
+from weldcell.sdk.handeye_files import HandEyeResult
 
 
 def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> list[str]:

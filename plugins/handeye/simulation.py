@@ -67,7 +67,7 @@ class SimCell:
         """Noisy target poses ``T_cam_target`` (n, 4, 4) for the target-based solvers: a ``grid`` x
         ``grid`` board of ``board_size`` m on the flange, each corner measured with the same N(0, σ)
         3-D noise, and the pose fitted to the corners — the same noise model as the flange points."""
-        from weldcell.plugins.handeye.pointfit import rigid_fit_batch
+        from weldcell.sdk.pointfit import rigid_fit_batch
 
         T_ft = np.eye(4) if T_flange_target is None else T_flange_target
         g = np.linspace(-board_size / 2, board_size / 2, grid)

@@ -13,8 +13,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from weldcell.plugins.handeye.pointfit import scaled_svd_fit
 from weldcell.sdk.geometry import T_to_rpy, invert
+from weldcell.sdk.pointfit import scaled_svd_fit
 
 Verifier = Callable[[np.ndarray], "np.ndarray | None"]
 Cost = Callable[["np.ndarray | None"], float]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from pydantic import Field
+from weldcell.hal.sim import world_of
 from weldcell.plugins.localize import acquisition as acq
 from weldcell.plugins.localize.acquisition import AcquisitionSettings
 from weldcell.plugins.localize.guidance import (
@@ -129,7 +130,7 @@ def projector_mount(ctx) -> np.ndarray:
 
 
 def is_simulated(ctx) -> bool:
-    return ctx.shared.get("sim.world") is not None
+    return world_of(ctx) is not None
 
 
 def confirm_fn(ctx):
@@ -180,7 +181,7 @@ def place_in_sim(ctx, template: Template, w: SimWorkerSettings) -> TruePlacement
         near = [i for i, p in enumerate(polys) if distance(p, points(wd.points[:, :2])).min() <= 3e-3]
         xy = np.mean([var[i].displace(wd.points[:, :2]) for i in near], axis=0) if near else wd.points[:, :2]
         welds.append(np.column_stack([xy @ M[:2, :2].T + M[:2, 3], wd.points[:, 2]]))
-    world = ctx.shared["sim.world"]
+    world = world_of(ctx)
     T_world_base = world.T_world("robot.base")
     wp = weldment_workpiece(
         outlines,
@@ -240,7 +241,7 @@ def inspect(ctx, plan, s: LocalizeAndWeldSettings, T_fs: np.ndarray) -> acq.Reco
             done[int(rec["line"])] = rec["file"]
     todo = [k for k in range(len(plan.lines)) if k not in done]
     lines = [acq.LineRecord.load(ctx.run_dir / done[k]) for k in sorted(done)]
-    world = ctx.shared.get("sim.world")
+    world = world_of(ctx)
     if lines and world is not None:  # a resumed simulation: its clock continues after what was recorded
         world.clock.advance(max(ln.t_end for ln in lines) + 1.0 - world.clock.t)
     if todo:

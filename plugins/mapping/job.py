@@ -267,7 +267,7 @@ def run(ctx) -> dict:
 def _visit(ctx, rig: Rig, tr: Tracking) -> dict:
     from weldcell.plugins.mapping import finish
 
-    detector = ctx.stage("detector") if "detector" in ctx.resolved["stages"] else None
+    detector = ctx.stage("detector") if "detector" in ctx.resolved.stages else None
     regions_truth = rig.site.weld_truth() if rig.site is not None else []
     drive(ctx, rig, tr, detector, regions_truth)
     return finish.finish(ctx, rig, tr)

@@ -166,9 +166,14 @@ def verified_hand_over(frontend, last, first, T_estimator, s: SegmentationSettin
     ang = float(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
     agree = np.linalg.norm(d[:3, 3]) <= s.max_disagreement and ang <= s.max_angle_disagreement
     if paper.method == "vio" or (visual and agree):
-        paper.note = (paper.note + "; " if paper.note else "") + (
-            f"estimator's pose, confirmed by {paper.method}" if paper.method != "vio" else "estimator's pose"
+        # as designed: the estimator's pose is kept, so a step of the check that did not refine the PnP pose
+        # (NDT on two single frames) is information, not a fallback ("PnP pose kept" would be untrue here)
+        checked = paper.note.replace("NDT did not verify", "NDT refinement not used").replace(
+            ": PnP pose kept", ""
         )
+        paper.note = (
+            f"estimator's pose, confirmed by {paper.method}" if paper.method != "vio" else "estimator's pose"
+        ) + (f"; {checked}" if checked else "")
         paper.method, paper.T_last_first = "verified", T_estimator.copy()
         return paper
     why = "tracking was not visual" if not visual else f"it disagrees with the estimator by {ang:.3f} rad"

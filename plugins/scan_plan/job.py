@@ -12,6 +12,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field
 from rich.markup import escape
+from weldcell.hal.sim import world_of
 from weldcell.plugins.scan_plan.coverage import expected_coverage, partial_seams, seam_coverage
 from weldcell.plugins.scan_plan.gesture import GestureScanController, GestureScanSettings
 from weldcell.sdk.artifacts import read_json, sha256_file
@@ -495,7 +496,7 @@ def execute(ctx, path, speed: float, approach: float) -> None:
 
 def ground_truth(ctx):
     """Ground-truth seams in the robot base frame when the cell is simulated, else None."""
-    world = ctx.shared.get("sim.world")
+    world = world_of(ctx)
     if world is None:
         return None
     T_base_world = invert(world.T_world("robot.base"))

@@ -3,31 +3,19 @@
 from __future__ import annotations
 
 import numpy as np
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim import devices as d
 from weldcell.hal.sim.flange import flange_for
 from weldcell.hal.sim.hands import load_script
-from weldcell.hal.sim.kinematics import get_model
-from weldcell.hal.sim.world import SimWorld
+from weldcell.hal.sim.world import SimWorld, shared_world
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rotvec, T_from_rpy
 
-WORLD_KEY = "sim.world"
-
 
 def world(ctx) -> SimWorld:
-    """The run's simulated world (built once from the profile's [sim] section)."""
-    if WORLD_KEY not in ctx.shared:
-        w = SimWorld.from_section(ctx.profile.profile.sim, seed=ctx.seed)
-        devs = ctx.profile.profile.devices.values()
-        on_base = any(e.mount.parent == "base" for e in devs)
-        if on_base and not any(e.plugin.startswith("robot.") for e in devs):
-            from weldcell.hal.sim.site import install_site
-
-            # sensors on a base with no arm in the cell: the mobile robot's base on the simulated site
-            install_site(w, seed=ctx.seed)
-        ctx.shared[WORLD_KEY] = w
-    return ctx.shared[WORLD_KEY]
+    """The run's simulated world (built once from the profile's [sim] section): :func:`shared_world`."""
+    return shared_world(ctx)
 
 
 def _parent(ctx) -> str:

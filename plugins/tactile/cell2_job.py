@@ -1,7 +1,8 @@
 """The ``calibrate-and-track`` job: cell 2 of paper 003 from scratch, in one run.
 
-1. **Calibrate** the fixed depth camera (eye-on-base) with the flange method: the ``calibrate`` job's own
-   function (:func:`weldcell.plugins.handeye.job.run`) runs on a sub-context whose run folder is
+1. **Calibrate** the fixed depth camera (eye-on-base) with the flange method: the registered
+   ``calibrate`` job (looked up by name in the plugin registry; its settings are
+   :class:`weldcell.sdk.calibration.CalibrateSettings`) runs on a sub-context whose run folder is
    ``calibrate/`` (its captures, ``handeye.json``, report and resume state live there).
 2. **Plan** the seam by vision with the ESTIMATED ``T_base_camera``: park the robot, scan the part,
    map the scan to the robot base with the estimate, denoise, find the seams (the profile's ``seam``
@@ -17,12 +18,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 from pydantic import Field
-from weldcell.plugins.handeye.job import CalibrateSettings
+from weldcell.hal.sim import true_camera_mount
 from weldcell.sdk.artifacts import save_figure
+from weldcell.sdk.calibration import CALIBRATE_JOB, CalibrateSettings
 from weldcell.sdk.errors import JobError
 from weldcell.sdk.geometry import pose_error
 from weldcell.sdk.settings import Settings
@@ -41,27 +44,34 @@ class CalibrateAndTrackSettings(Settings):
 
 
 class _CalibrationContext:
-    """The run context as the ``calibrate`` job sees it: its settings, its stage, its own run folder."""
+    """The run context as the ``calibrate`` job sees it: its settings, its stage, its own run folder.
 
-    def __init__(self, ctx, settings) -> None:
+    The job is the one registered as ``calibrate`` (:data:`~weldcell.sdk.calibration.CALIBRATE_JOB`),
+    whichever plugin provides it."""
+
+    def __init__(self, ctx, settings: CalibrateSettings) -> None:
         from weldcell.sdk.jobs import RunContext
 
-        resolved = {**ctx.resolved, "job": settings, "stages": {"handeye": ctx.resolved["stages"]["handeye"]}}
+        self.spec = ctx.pm.registry.get("job", CALIBRATE_JOB)
+        resolved = dataclasses.replace(
+            ctx.resolved,
+            job_spec=self.spec,
+            job=settings,
+            stages={"handeye": ctx.resolved.stages["handeye"]},
+        )
         sub = RunContext(ctx.loaded, resolved, ctx.pm, ctx.run_dir / "calibrate", ctx.reporter)
         sub.devices, sub.shared = ctx.devices, ctx.shared
         self.sub = sub
 
     def run(self) -> dict[str, Any]:
-        from weldcell.plugins.handeye import job as handeye_job
-
         (self.sub.run_dir).mkdir(parents=True, exist_ok=True)
-        return handeye_job.run(self.sub) or {}
+        return self.spec.run(self.sub) or {}
 
 
 def calibration_error_vs_samples(run_dir, truth: np.ndarray, feature) -> list[dict[str, float]]:
     """Error of the all-data fit (eqs. 9-12) against the true mount, for the first n samples (Figs. 10-11)."""
-    from weldcell.plugins.handeye.pointfit import scaled_svd_fit
-    from weldcell.plugins.handeye.samples_io import read_samples
+    from weldcell.sdk.handeye_files import read_samples
+    from weldcell.sdk.pointfit import scaled_svd_fit
 
     path = run_dir / "samples.json"
     if not path.is_file():
@@ -79,8 +89,6 @@ def calibration_error_vs_samples(run_dir, truth: np.ndarray, feature) -> list[di
 
 def run(ctx) -> dict[str, Any]:
     """The ``calibrate-and-track`` job."""
-    from weldcell.plugins.handeye.job import ground_truth
-
     from .job import _true_seams
 
     s: CalibrateAndTrackSettings = ctx.settings
@@ -97,7 +105,7 @@ def run(ctx) -> dict[str, Any]:
     cal_fig = cal.run()
     ctx.timings.update({f"calibrate: {k}": v for k, v in cal.sub.timings.items()})
     T_est = read_T_base_camera(cal.sub.run_dir / "handeye.json")
-    truth = ground_truth(ctx)
+    truth = true_camera_mount(ctx)
     figures["calibration"] = {k: v for k, v in cal_fig.items() if not isinstance(v, dict)}
     if truth is not None:
         dt, dr = pose_error(T_est, truth)

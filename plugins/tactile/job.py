@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
+from weldcell.hal.sim import world_of
 from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import frame_from_axes, invert, transform_points
@@ -710,7 +711,7 @@ def summary_text(fig: dict[str, Any], title: str) -> str:
 
 def read_T_base_camera(path: Path) -> np.ndarray:
     """``T_base_camera`` from a ``weldcell/hand-eye@1`` file (eye-on-base)."""
-    from weldcell.plugins.handeye.samples_io import read_result
+    from weldcell.sdk.handeye_files import read_result
 
     res = read_result(path)
     if res.name != "T_base_camera":
@@ -751,7 +752,7 @@ def run(ctx) -> dict[str, Any]:
 
 def _true_seams(ctx) -> list[np.ndarray] | None:
     """Ground-truth seams in the robot base frame (simulated cell), else None."""
-    world = ctx.shared.get("sim.world")
+    world = world_of(ctx)
     if world is None:
         return None
     T_base_world = invert(world.T_world("robot.base"))

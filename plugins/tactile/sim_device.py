@@ -229,7 +229,7 @@ class SimTactileCamera(TactileCamera):
 
 def factory(settings: SimTactileSettings, ctx) -> SimTactileCamera:
     """Build from the profile: the mount must be ``<robot role>.flange`` (the tool frame's offset)."""
-    from weldcell.plugins.sim.factories import world
+    from weldcell.hal.sim.world import shared_world
 
     parent = ctx.mount.parent
     if not parent.endswith(".flange"):
@@ -238,7 +238,7 @@ def factory(settings: SimTactileSettings, ctx) -> SimTactileCamera:
             'set mount = { parent = "robot.flange", xyz = [0, 0, <tip offset>] }',
         )
     return SimTactileCamera(
-        world(ctx),
+        shared_world(ctx),
         parent[: -len(".flange")],
         ctx.T_parent_device,
         settings,

@@ -11,7 +11,7 @@ NAME = "robot.ur-rtde"
 
 def gate_model(model: str):
     """weldcell's kinematic model of a UR ``model`` for the safety gate, or None when there is none."""
-    from weldcell.hal.sim.kinematics import get_model
+    from weldcell.hal.kinematics import get_model
     from weldcell.sdk.errors import DataError
 
     try:

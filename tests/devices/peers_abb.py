@@ -19,7 +19,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 from abb_robot_client._egm_protobuf import egm_pb2
-from weldcell.hal.sim.kinematics import get_model
+from weldcell.hal.kinematics import get_model
 from weldcell.plugins.abb import RAPID_MODULE
 from weldcell.plugins.abb import rapid_values as V
 from weldcell.sdk.geometry import interpolate_poses, rotation_angle

@@ -25,7 +25,7 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from weldcell.hal.sim.kinematics import get_model  # noqa: E402
+from weldcell.hal.kinematics import get_model  # noqa: E402
 from weldcell.sdk.geometry import T_from_rotvec, T_from_rpy, T_to_rpy, interpolate_poses  # noqa: E402
 
 #: enums travel as their names (``"Running"``, ``"ProtectiveStop"``), as pyaubo-sdk 0.24 decodes them

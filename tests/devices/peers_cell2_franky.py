@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import franky
 import numpy as np
-from weldcell.hal.sim.kinematics import get_model
+from weldcell.hal.kinematics import get_model
 from weldcell.sdk.geometry import T_from_rotvec, invert
 
 #: Franka hand as NE (Desk default when the gripper is configured): 45 deg about z, 0.1034 m along z

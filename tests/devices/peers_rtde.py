@@ -290,7 +290,7 @@ class DashboardPeer:
 
 
 def _child(conn, model_name: str, host: str) -> None:
-    from weldcell.hal.sim.kinematics import get_model
+    from weldcell.hal.kinematics import get_model
 
     arm = SimArm(get_model(model_name))
     rtde = RTDEPeer(arm, host)
@@ -396,7 +396,7 @@ class FakeRTDEControlInterface:
     ) -> None:
         if hostname not in self.peers:
             raise RuntimeError(f"Couldn't connect to {hostname}:30004 (no controller)")
-        from weldcell.hal.sim.kinematics import get_model
+        from weldcell.hal.kinematics import get_model
 
         self.peer = self.peers[hostname]
         self.model = get_model(self.peer.model_name)

@@ -14,9 +14,9 @@ pytest.importorskip(
 )
 
 from peers_abb import AbbPeer, free_udp_port, module_variables  # noqa: E402
+from weldcell.hal.kinematics import get_model  # noqa: E402
 from weldcell.hal.lifecycle import State  # noqa: E402
 from weldcell.hal.safety import SafetyGate  # noqa: E402
-from weldcell.hal.sim.kinematics import get_model  # noqa: E402
 from weldcell.plugins.abb import RAPID_MODULE  # noqa: E402
 from weldcell.plugins.abb import rapid_values as V  # noqa: E402
 from weldcell.plugins.abb.adapter import ABBRobot  # noqa: E402

@@ -12,9 +12,9 @@ import numpy as np
 import pyaubo_sdk
 import pytest
 from peers_cell2_aubo import PARAMS, AuboSim, FakeRpcClient, peer_request
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.lifecycle import State
 from weldcell.hal.safety import SafetyGate
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.plugins import aubo as aubo_plugin
 from weldcell.plugins.aubo.adapter import AuboRobot, T_to_pose, pose_to_T, probe_aubo
 from weldcell.plugins.aubo.settings import AuboSettings

@@ -8,9 +8,9 @@ import franky
 import numpy as np
 import pytest
 from peers_cell2_franky import FakeFrankyRobot, FrankaWorld
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.lifecycle import State
 from weldcell.hal.safety import SafetyGate
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.plugins import franka as franka_plugin
 from weldcell.plugins.franka.adapter import FrankaRobot, probe_franka
 from weldcell.plugins.franka.settings import FrankaSettings

@@ -13,9 +13,9 @@ pytest.importorskip("rtde_receive", reason="ur-rtde is not installed (pip instal
 
 import rtde_control  # noqa: E402
 from peers_rtde import FakeRTDEControlInterface, PeerProcess  # noqa: E402
+from weldcell.hal.kinematics import get_model  # noqa: E402
 from weldcell.hal.lifecycle import State  # noqa: E402
 from weldcell.hal.safety import SafetyGate  # noqa: E402
-from weldcell.hal.sim.kinematics import get_model  # noqa: E402
 from weldcell.plugins import ur as ur_plugin  # noqa: E402
 from weldcell.plugins.ur.adapter import URRobot, path_blends  # noqa: E402
 from weldcell.plugins.ur.rtde_client import rtde_handshake  # noqa: E402

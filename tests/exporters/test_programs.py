@@ -7,8 +7,8 @@ import copy
 
 import numpy as np
 import pytest
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.safety import SafetyGate
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.plugins.exporters import controllers, programs
 from weldcell.sdk.cell import SafetyLimits
 from weldcell.sdk.errors import SafetyError

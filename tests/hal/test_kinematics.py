@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from weldcell.hal.sim.kinematics import MODELS, get_model, trapezoid_time
+from weldcell.hal.kinematics import MODELS, get_model, trapezoid_time
 from weldcell.sdk.errors import DataError, SafetyError, UsageError
 from weldcell.sdk.geometry import make_T, pose_error
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim.devices import SimRobot
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.world import SimWorld
 from weldcell.sdk.cell import SafetyLimits
 from weldcell.testing.safety_fuzz import fuzz_robot

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import weldcell.plugins.handeye as handeye_plugin
 from click.testing import CliRunner
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.sim.devices import SimDepthCamera, SimRobot
 from weldcell.hal.sim.flange import flange_for
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.world import SimWorld
 from weldcell.plugins.handeye.result import HandEyeSample
 from weldcell.plugins.handeye.samples_io import write_samples

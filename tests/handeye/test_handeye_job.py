@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.sim.devices import SimDepthCamera, SimRobot
 from weldcell.hal.sim.flange import flange_for
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.world import SimWorld
 from weldcell.plugins.handeye.iterative import iterative_pool
 from weldcell.plugins.handeye.job import plan_poses

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.readings import Intrinsics
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim.devices import SimProjector, SimRobot
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.world import SimWorld
 from weldcell.plugins.localize import projector_calibration as pc
 from weldcell.plugins.localize.guidance import (

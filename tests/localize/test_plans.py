@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from weldcell.hal.sim.kinematics import get_model
+from weldcell.hal.kinematics import get_model
 from weldcell.plugins.localize.plans import (
     PlanSettings,
     _crossings,

@@ -7,10 +7,10 @@ import time
 
 import numpy as np
 import pytest
+from weldcell.hal.kinematics import get_model
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.hal.safety import SafetyGate
 from weldcell.hal.sim.devices import SimDisplacementSensor, SimRobot
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.laser_model import PRESETS, CouplingError, LaserModel, preset
 from weldcell.hal.sim.weldment import weldment_workpiece
 from weldcell.hal.sim.world import SimWorld

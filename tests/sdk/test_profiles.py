@@ -54,21 +54,38 @@ def only(problems: list[str], needle: str) -> str:
 def test_fixture_profile_validates_with_units_converted(fixture_pm, fixtures_dir):
     loaded, resolved = prepare(fixtures_dir / "fixture-job-sim.toml", fixture_pm)
     assert loaded.profile.name == "fixture-sim"
-    assert resolved["job"].standoff == pytest.approx(0.015)  # "15 mm"
-    assert resolved["job"].passes == 2
-    spec, settings = resolved["devices"]["robot"]
+    assert resolved.job.standoff == pytest.approx(0.015)  # "15 mm"
+    assert resolved.job.passes == 2
+    spec, settings = resolved.devices["robot"]
     assert spec.name == "robot.sim" and settings.tcp_xyz == pytest.approx((0.0, 0.0, 0.1))  # "100 mm"
     assert (
-        resolved["stages"]["scale"][0].name == "scale.multiply"
-        and resolved["stages"]["scale"][1].factor == 2.0
+        resolved.stages["scale"][0].name == "scale.multiply"
+        and resolved.stages["scale"][1].factor == 2.0
     )
-    assert "camera" not in resolved["devices"]  # optional role, not given
+    assert "camera" not in resolved.devices  # optional role, not given
+
+
+def test_resolved_profile_is_typed_frozen_and_keeps_the_old_keys_deprecated(fixture_pm, fixtures_dir):
+    import dataclasses
+
+    from weldcell.sdk.profile import ResolvedProfile
+
+    _, resolved = prepare(fixtures_dir / "fixture-job-sim.toml", fixture_pm)
+    assert isinstance(resolved, ResolvedProfile)
+    assert resolved.job_spec.name == "fixture-job" and resolved.exporters == []
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        resolved.job = None
+    # third-party code written against the old dict still reads the same objects, with a warning
+    with pytest.warns(DeprecationWarning, match=r"resolved\.stages"):
+        assert resolved["stages"] is resolved.stages
+    with pytest.raises(KeyError):
+        resolved["settings"]
 
 
 def test_stage_default_is_used_when_the_profile_is_silent(fixture_pm, tmp_path):
     loaded, resolved = prepare(write(tmp_path, HEADER + ROBOT), fixture_pm)
-    assert resolved["stages"]["scale"][0].name == "scale.multiply"
-    assert resolved["stages"]["scale"][1].factor == 1.0
+    assert resolved.stages["scale"][0].name == "scale.multiply"
+    assert resolved.stages["scale"][1].factor == 1.0
 
 
 # -- extends ----------------------------------------------------------------------------------
@@ -124,7 +141,7 @@ def test_env_substitution(fixture_pm, tmp_path, monkeypatch):
     monkeypatch.setenv("WELDCELL_TEST_CELL_LABEL", "bay-7")
     p = write(tmp_path, HEADER + '[job.settings]\nlabel = "cell ${env:WELDCELL_TEST_CELL_LABEL}!"\n' + ROBOT)
     loaded, resolved = prepare(p, fixture_pm)
-    assert resolved["job"].label == "cell bay-7!"
+    assert resolved.job.label == "cell bay-7!"
 
 
 def test_missing_env_var_names_the_variable_and_key(tmp_path, monkeypatch):
@@ -180,7 +197,7 @@ def test_out_of_range_in_a_device_setting(fixture_pm, tmp_path):
 
 def test_unit_strings_are_converted_and_wrong_units_refused(fixture_pm, tmp_path):
     p = write(tmp_path, HEADER + '[job.settings]\nstandoff = "15 mm"\n' + ROBOT)
-    assert prepare(p, fixture_pm)[1]["job"].standoff == pytest.approx(0.015)
+    assert prepare(p, fixture_pm)[1].job.standoff == pytest.approx(0.015)
     p = write(tmp_path, HEADER + '[job.settings]\nstandoff = "15 kg"\n' + ROBOT, "kg.toml")
     line = only(problems_of(p, fixture_pm), "standoff")
     assert line.startswith(f"{p.resolve()}: job.settings.standoff: ")

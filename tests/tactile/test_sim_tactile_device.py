@@ -8,8 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import weldcell.plugins.tactile as tactile_plugin
+from weldcell.hal.kinematics import get_model
+from weldcell.hal.sim import WORLD_KEY
 from weldcell.hal.sim.devices import SimRobot
-from weldcell.hal.sim.kinematics import get_model
 from weldcell.hal.sim.workpieces import make_workpiece
 from weldcell.hal.sim.world import SimWorld
 from weldcell.plugins.tactile.marker import CameraIntrinsics, MarkerDisplacementEstimator, MarkerLost
@@ -126,7 +127,7 @@ def test_mounting_off_a_flange_or_without_the_robot_is_a_clear_error():
         mount=SimpleNamespace(parent="world"),
         role="tactile",
         seed=0,
-        shared={"sim.world": world},
+        shared={WORLD_KEY: world},
         T_parent_device=np.eye(4),
     )
     with pytest.raises(DeviceError) as e:

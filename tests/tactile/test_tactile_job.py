@@ -181,8 +181,8 @@ def test_hardware_template_validates_against_the_adapters(pm):
     except Exception as e:  # a missing optional vendor library is the only acceptable problem here
         assert "install" in str(getattr(e, "fix", "")) or "extra" in str(e), e
         return
-    assert resolved["devices"]["tactile"][0].name == "tactile.aruco-camera"
-    assert resolved["job_spec"].name == "calibrate-and-track"
+    assert resolved.devices["tactile"][0].name == "tactile.aruco-camera"
+    assert resolved.job_spec.name == "calibrate-and-track"
 
 
 @pytest.mark.slow

@@ -99,9 +99,9 @@ def test_a_profile_selects_the_stage_and_exporter(sim_pm, register_plugin, tmp_p
     f.write_text(PROFILE.format(settings='min_step = "3 mm"'))
     with register_plugin(weldcell_plugin_example, "example"):
         _, resolved = prepare(f, sim_pm)
-        spec, settings = resolved["stages"]["seam"]
+        spec, settings = resolved.stages["seam"]
         assert spec.name == "seam.height-step" and settings.min_step == pytest.approx(0.003)
-        assert [e.name for e in resolved["exporters"]] == ["export.gcode-like"]
+        assert [e.name for e in resolved.exporters] == ["export.gcode-like"]
         f.write_text(PROFILE.format(settings='min_step = "3 kg"'))
         with pytest.raises(ProfileError) as err:
             prepare(f, sim_pm)
