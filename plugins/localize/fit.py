@@ -30,7 +30,7 @@ from weldcell.sdk.units import Angle, Length
 from .cost import Segments, distances, field_for
 from .pose import inverse_xy, pose_matrix, rot2, wrap
 from .refine import Refined, _jacobian, cauchy_weights, covariance, gauss_newton, member_fits, replan_welds
-from .search import SeedRunner, _pose_gap, global_search, paper_seeds, seeds_to_tasks
+from .search import SeedRunner, _pose_gap, global_search, paper_seeds, polish, seeds_to_tasks
 from .template import Template
 
 SCHEMA = "weldcell/localization@1"
@@ -204,14 +204,15 @@ def localize(template: Template, edges, settings: LocalizeSettings | None = None
     grid = (s.grid_resolution, cap + 0.02, cap)
     fld = field_for(segs.array, *grid)
     timings["distance_field"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     if s.method == "paper":
         rng = np.random.default_rng(0)
         outline = np.concatenate([m.outline for m in template.members])
         seeds = paper_seeds(outline, center, xy, s.seeds, s.seed_window_xy, s.seed_window_theta, rng)
         results = runner.run(seeds_to_tasks(xy, segs, seeds, "linear", 1.0, radius, grid))
-        best = min(results, key=lambda r: r.cost)
+        best = polish(xy, segs, min(results, key=lambda r: r.cost).pose, radius)  # exact eq. (3)
         timings["powell"] = time.perf_counter() - t1
+        timings["powell_cpu"] = time.process_time() - c1  # this process only (not the pool's workers)
         ref = _at(best.pose, xy, segs, center, s)
         cands = [ref]
     else:

@@ -2,9 +2,11 @@
 
 * :func:`paper_seeds`: the paper's seeds, within ±50 mm and ±20° of the edges' centre of mass and
   orientation (the pose that maps the template outline's centre and principal axis onto the edges').
-* :func:`powell` / :class:`SeedRunner`: Powell's method (scipy) from each seed, on eq. (3) or on a robust
-  loss of the same distances; the seeds run in a reused process pool, or serially when the pool would cost
-  more than it saves (measured: the first seed's run time against the pool's round trip).
+* :func:`powell` / :class:`SeedRunner`: Powell's method (scipy) from each seed, on eq. (3) (through the
+  Voronoi labels of the template's distance field) or on a robust loss of the same distances;
+  :func:`polish`: the winner refined by Powell on the exact eq. (3); the seeds run in a reused process
+  pool, or serially when the pool would cost more than it saves (measured: the first seed's run time
+  against the pool's round trip).
 * :func:`global_search`: a seed-free search of the whole window: every rotation step and translation step of
   the window scored at once on the template's distance transform (truncated distance), then the best
   distinct cells refined on a finer grid. Its result does not depend on lucky seeds.
@@ -23,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from .cost import DistanceField, Segments, distances, field_for
+from .cost import DistanceField, Eq3, Segments, distances, field_for
 from .pose import rot2, wrap
 
 
@@ -79,22 +81,49 @@ def robust_cost(d: np.ndarray, loss: str, scale: float) -> float:
     raise ValueError(f"unknown loss {loss!r}")
 
 
+# Powell's tolerances, in the scaled units (1 unit = 1 mm of motion). The seeds only have to find the
+# basin of the lowest minimum, so they stop at 0.3 mm / 1e-3 relative; the winner is then polished on the
+# exact eq. (3) (:func:`polish`). Measured (benchmarks/localize_speed.py): the final pose is within 0.003 mm
+# / 0.002 deg of a 1 µm-tolerance Powell on the exact eq. (3) from the same seeds (localization.md §4).
+SEED_OPTIONS = {"xtol": 0.3, "ftol": 1e-3, "maxfev": 3000}
+POLISH_OPTIONS = {"xtol": 1e-2, "ftol": 1e-6, "maxfev": 3000}
+POLISH_STEP = 0.1  # initial direction length (units): the polish starts within a fraction of a mm
+
+
+def _units(radius: float) -> np.ndarray:
+    return np.array([1e-3, 1e-3, 1e-3 / max(radius, 1e-3)])  # 1 mm of motion per unit in each direction
+
+
 def powell(args) -> SearchResult:
     """Powell's method from one seed. A picklable task ``(xy, segments (S,2,2), center, seed, loss, scale,
     radius, k, grid)``; ``grid`` = (res, margin, cap) of the Voronoi-label field (built once per process), or
-    None for the all-pairs evaluation."""
+    None for the all-pairs evaluation. The linear loss (eq. 3) goes through :class:`~.cost.Eq3`."""
     xy, seg_array, center, seed, loss, scale, radius, k, grid = args
     segs = Segments.from_array(seg_array, center)
     fld = field_for(seg_array, *grid) if grid is not None else None
-    unit = np.array([1e-3, 1e-3, 1e-3 / max(radius, 1e-3)])  # 1 mm of motion per unit in each direction
+    unit = _units(radius)
+    if loss == "linear":
+        eq3 = Eq3(xy, segs, fld)
 
-    def f(p):
-        return robust_cost(distances(p * unit, xy, segs, fld), loss, scale)
+        def f(p):
+            return eq3(p * unit)
+    else:
 
-    r = minimize(
-        f, np.asarray(seed) / unit, method="Powell", options={"xtol": 1e-2, "ftol": 1e-7, "maxfev": 3000}
-    )
+        def f(p):
+            return robust_cost(distances(p * unit, xy, segs, fld), loss, scale)
+
+    r = minimize(f, np.asarray(seed) / unit, method="Powell", options=SEED_OPTIONS)
     return SearchResult(np.asarray(r.x) * unit, float(r.fun), int(r.nfev), k)
+
+
+def polish(xy: np.ndarray, segs: Segments, pose, radius: float) -> SearchResult:
+    """Powell's method on the exact eq. (3) (every point against every segment) from ``pose``: the final
+    step of the paper's search, so that its answer is the minimum of the paper's cost as written."""
+    unit = _units(radius)
+    eq3 = Eq3(xy, segs, None, exact=True)
+    opts = {**POLISH_OPTIONS, "direc": np.eye(3) * POLISH_STEP}
+    r = minimize(lambda p: eq3(p * unit), np.asarray(pose) / unit, method="Powell", options=opts)
+    return SearchResult(np.asarray(r.x) * unit, float(r.fun), int(r.nfev), -1)
 
 
 def _noop(x):

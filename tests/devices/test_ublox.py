@@ -236,7 +236,7 @@ def test_registered_with_its_extras():
 def test_probe_reads_without_configuring(peer):
     from weldcell.plugins.ublox import probe
 
-    text = probe(UbloxSettings(port=peer.path, open_timeout=1.0))
+    text = probe(UbloxSettings(port=peer.path, open_timeout=5.0))
     assert "fix 3d" in text and "9 satellites" in text and peer.configured == []
 
 

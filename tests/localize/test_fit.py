@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from weldcell.plugins.localize.cost import Eq3, Segments, distances, field_for
 from weldcell.plugins.localize.edges import extract_edges
 from weldcell.plugins.localize.fit import LocalizeSettings, localize
 from weldcell.plugins.localize.pose import apply_xy, pose_matrix, transform_template
@@ -59,6 +60,38 @@ def test_paper_method_powell_from_seven_seeds():
     assert loc.status == "ok", loc.message
     assert np.allclose(loc.pose[:2], pose[:2], atol=0.5e-3) and abs(math.degrees(loc.pose[2] - pose[2])) < 0.1
     assert loc.fit_error_mean < 1e-3 and loc.parallel.startswith("serial")
+
+
+def test_fast_eq3_has_the_value_of_the_paper_cost():
+    """The optimiser's eq. (3) (Voronoi labels of the distance field) equals the all-pairs sum of
+    point-to-segment distances; points off the grid fall back to all pairs; exact=True is that sum itself."""
+    tpl = warren_truss()
+    segs = Segments.of(tpl)
+    fld = field_for(segs.array, 1e-3, 0.052, 0.032)
+    xy = _inspect(tpl, (0.01, -0.004, math.radians(7.0)), seed=2).xy
+    fast, exact = Eq3(xy, segs, fld), Eq3(xy, segs, fld, exact=True)
+    for pose in [(0.01, -0.004, math.radians(7.0)), (0.0, 0.0, 0.0), (0.03, 0.02, math.radians(-15.0))]:
+        ref = float(distances(pose, xy, segs).sum())
+        assert exact(pose) == pytest.approx(ref, rel=1e-12)
+        # a label can be the runner-up segment only near a medial axis: within a cell per point, rarely
+        assert ref <= fast(pose) + 1e-12 and fast(pose) == pytest.approx(ref, rel=2e-3)
+    far = np.vstack([xy, [[5.0, 5.0]]])  # a point far off the template's grid
+    ref = distances((0, 0, 0), far, segs).sum()
+    assert Eq3(far, segs, fld)((0.0, 0.0, 0.0)) == pytest.approx(ref, rel=1e-12)
+
+
+def test_paper_method_ends_at_a_minimum_of_the_exact_eq3():
+    tpl = ladder_frame()
+    edges = _inspect(tpl, (-0.006, 0.011, math.radians(12.0)), seed=3)
+    loc = localize(tpl, edges, LocalizeSettings(method="paper", parallel="never"))
+    assert loc.status == "ok", loc.message
+    eq3 = Eq3(edges.xy, Segments.of(tpl), None, exact=True)
+    e0 = eq3(loc.pose)
+    for k, h in ((0, 0.05e-3), (1, 0.05e-3), (2, math.radians(0.01))):  # no better pose a step away
+        for sgn in (-1, 1):
+            p = loc.pose.copy()
+            p[k] += sgn * h
+            assert eq3(p) >= e0 - 1e-9
 
 
 def test_placement_outside_the_window_fails_instead_of_answering():
