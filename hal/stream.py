@@ -304,3 +304,26 @@ class StreamingDevice(Device):
     def close(self) -> None:
         self._halt_stream()
         super().close()
+
+
+def recv_within_silence(
+    device: Device, port, timeout: float, last_byte: float, silence_timeout: float, silent: str
+) -> bytes:
+    """Bytes a byte-stream device (serial, TCP) sent within ``timeout``, never waiting past its silence
+    limit, so that a silent device is detected on time; ``b""`` when none came yet.
+
+    Raises ``device.fault`` when the connection is lost (a pulled cable) or nothing came for longer than
+    ``silence_timeout`` since ``last_byte`` (monotonic time of the last byte); ``silent`` is that message,
+    with ``{seconds}`` for how long it has been silent ("IMU silent for {seconds:.2f} s while active")."""
+    from weldcell.hal.transports import TransportClosed, TransportTimeout
+
+    timeout = min(timeout, max(0.001, last_byte + silence_timeout - time.monotonic()))
+    try:
+        data = port.recv(timeout=timeout)
+    except TransportTimeout:
+        data = b""
+    except TransportClosed as e:
+        raise device.fault(f"connection lost ({e.message}); the cable may have been pulled") from None
+    if not data and time.monotonic() - last_byte > silence_timeout:
+        raise device.fault(silent.format(seconds=time.monotonic() - last_byte))
+    return data

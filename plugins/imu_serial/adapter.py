@@ -10,7 +10,7 @@ import serial  # noqa: F401 - the vendor library of this adapter (extra 'serial'
 from scipy.spatial.transform import Rotation
 from weldcell.hal.interfaces import Imu
 from weldcell.hal.readings import ImuReading
-from weldcell.hal.stream import backdate
+from weldcell.hal.stream import backdate, recv_within_silence
 from weldcell.hal.transports import SerialTransport, TransportClosed, TransportTimeout
 from weldcell.plugins.imu_serial import protocol as p
 from weldcell.plugins.imu_serial.settings import ImuSerialSettings
@@ -109,20 +109,17 @@ class SerialImu(Imu):
 
     # -- readings --------------------------------------------------------------------------------
     def _read_burst(self, timeout: float) -> list[ImuReading]:
-        # never wait past the silence limit, so a silent device is detected on time
-        silent_at = self._last_byte + self.settings.silence_timeout
-        timeout = min(timeout, max(0.001, silent_at - time.monotonic()))
-        try:
-            data = self.port.recv(timeout=timeout)
-        except TransportTimeout:
-            data = b""
-        except TransportClosed as e:
-            raise self.fault(f"connection lost ({e.message}); the cable may have been pulled") from None
-        now = time.monotonic()
+        data = recv_within_silence(
+            self,
+            self.port,
+            timeout,
+            self._last_byte,
+            self.settings.silence_timeout,
+            "IMU silent for {seconds:.2f} s while active",
+        )
         if not data:
-            if now - self._last_byte > self.settings.silence_timeout:
-                raise self.fault(f"IMU silent for {now - self._last_byte:.2f} s while active")
             return []
+        now = time.monotonic()
         self._last_byte = now
         dec = self.decoder
         parts = self._merge(dec.feed(data))

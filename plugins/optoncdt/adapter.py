@@ -8,7 +8,7 @@ import time
 import serial  # noqa: F401 - the vendor library of this adapter (extra 'serial'); used by SerialTransport
 from weldcell.hal.interfaces import DisplacementSensor
 from weldcell.hal.readings import Displacement
-from weldcell.hal.stream import backdate
+from weldcell.hal.stream import backdate, recv_within_silence
 from weldcell.hal.transports import SerialTransport, TransportClosed, TransportTimeout
 from weldcell.plugins.optoncdt import protocol as p
 from weldcell.plugins.optoncdt.settings import OptoNcdtSettings
@@ -177,23 +177,17 @@ class OptoNcdt(DisplacementSensor):
         return d, None if d is not None else p.ERROR_CODES.get(dvo, f"error code {dvo}")
 
     def _read_burst(self, timeout: float) -> list[Displacement]:
-        # never wait past the silence limit, so a silent device is detected on time
-        silent_at = self._last_byte + self.settings.silence_timeout
-        timeout = min(timeout, max(0.001, silent_at - time.monotonic()))
-        try:
-            data = self.port.recv(timeout=timeout)
-        except TransportTimeout:
-            data = b""
-        except TransportClosed as e:
-            raise self.fault(f"connection lost ({e.message}); the cable may have been pulled") from None
-        now = time.monotonic()
+        data = recv_within_silence(
+            self,
+            self.port,
+            timeout,
+            self._last_byte,
+            self.settings.silence_timeout,
+            "sensor silent for {seconds:.2f} s while measuring (power, RS422 wiring, or output switched off)",
+        )
         if not data:
-            if now - self._last_byte > self.settings.silence_timeout:
-                raise self.fault(
-                    f"sensor silent for {now - self._last_byte:.2f} s while measuring "
-                    "(power, RS422 wiring, or output switched off)"
-                )
             return []
+        now = time.monotonic()
         self._last_byte = now
         dvos = self.decoder.feed(data)
         dec = self.decoder
