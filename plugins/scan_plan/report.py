@@ -175,7 +175,13 @@ def _summary(ctx, scans, rec, clean, path, gt, notes) -> str:
             f"ICP fitness     {np.mean(rec.fitness_before):.3f} -> {np.mean(rec.fitness):.3f} "
             "(mean over views)"
         )
-    lines.append(f"seams found     {len(path.seams)}" + (f" of {m.get('seams_true')} true" if gt else ""))
+    found = f"seams found     {len(path.seams)}" + (f" of {m.get('seams_true')} true" if gt else "")
+    coverage = m.get("coverage") or []
+    if coverage:  # "1 of 1" must not hide a seam found over a quarter of its length
+        found += "; covered " + ", ".join(
+            f"{c['found_mm']:.0f} of {c['length_mm']:.0f} mm ({100 * c['fraction']:.0f} %)" for c in coverage
+        )
+    lines.append(found)
     for seam in path.seams:
         lines.append(
             f"  {seam.id:>4}  {seam.joint:<8} {seam.length * 1000:7.1f} mm  {len(seam.poses)} torch poses"

@@ -263,3 +263,5 @@ def test_half_scanned_seam_is_reported_partial_and_the_run_exits_with_a_warning(
     assert any("PARTIAL" in msg for kind, msg in recorder.events if kind == "info")
     result = json.loads((run_dir / "result.json").read_text())
     assert result["status"] == "warning" and "of 500 mm" in result["error"]["message"]
+    summary = (run_dir / "summary.txt").read_text()
+    assert "seams found     1 of 1 true; covered " in summary and "of 500 mm" in summary
