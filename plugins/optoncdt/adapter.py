@@ -34,6 +34,7 @@ class OptoNcdt(DisplacementSensor):
         self.info: dict[str, str] = {}
         self._last_byte = 0.0
         self._last_stamp: float | None = None
+        self._held: list[int] = []  # values that arrived with the DAT_OUT_ON reply, not yet returned
 
     # -- lifecycle -------------------------------------------------------------------------------
     def on_configure(self) -> None:
@@ -68,7 +69,8 @@ class OptoNcdt(DisplacementSensor):
         return p.Decoder()
 
     def on_activate(self) -> None:
-        self._send(p.DAT_OUT_ON)
+        self._held = []
+        self._send(p.DAT_OUT_ON, keep_values=True)  # values read together with the reply are kept
         dec = self.decoder  # keep a value split across the reply; count losses from here on
         dec.lost_bytes = dec.good_bytes = 0
         dec.errors.clear()
@@ -89,17 +91,24 @@ class OptoNcdt(DisplacementSensor):
         self.decoder = self._new_decoder()
 
     # -- commands --------------------------------------------------------------------------------
-    def _send(self, code: int, *params: int, timeout: float | None = None) -> p.Reply:
-        """Send a command and wait for its reply (values arriving meanwhile are dropped)."""
+    def _send(
+        self, code: int, *params: int, timeout: float | None = None, keep_values: bool = False
+    ) -> p.Reply:
+        """Send a command and wait for its reply.
+
+        Values arriving meanwhile are dropped (they belong to an output being switched off), except with
+        ``keep_values``: after DAT_OUT_ON the first values often share a read with the reply, and they
+        are measurements the caller asked for.
+        """
         t = self.settings.reply_timeout if timeout is None else timeout
         self.decoder.replies.clear()  # stale answers
         try:
             self.port.send(p.command(code, *params))
         except TransportClosed as e:
             raise self._port_error(e) from None
-        return self._wait_reply(code, t)
+        return self._wait_reply(code, t, keep_values)
 
-    def _wait_reply(self, code: int, timeout: float) -> p.Reply:
+    def _wait_reply(self, code: int, timeout: float, keep_values: bool = False) -> p.Reply:
         dec = self.decoder
         got = 0
         values = 0
@@ -118,7 +127,10 @@ class OptoNcdt(DisplacementSensor):
             except TransportClosed as e:
                 raise self._port_error(e) from None
             got += len(data)
-            values += len(dec.feed(data))
+            dvos = dec.feed(data)
+            values += len(dvos)
+            if keep_values:
+                self._held += dvos
         raise self._no_reply(code, got, values)
 
     def _set_rate(self, rate_hz: int) -> None:
@@ -177,6 +189,9 @@ class OptoNcdt(DisplacementSensor):
         return d, None if d is not None else p.ERROR_CODES.get(dvo, f"error code {dvo}")
 
     def _read_burst(self, timeout: float) -> list[Displacement]:
+        if self._held:
+            held, self._held = self._held, []
+            return self._readings(held, time.time())
         data = recv_within_silence(
             self,
             self.port,
