@@ -398,3 +398,34 @@ def largest_eigvec(C: np.ndarray) -> np.ndarray:
     """Unit eigenvector (N, 3) of the largest eigenvalue of each symmetric 3x3 ``C`` (N, 3, 3)."""
     C = np.asarray(C, dtype=float).reshape(-1, 3, 3)
     return sym3_eigvec(C, sym3_eigvals(C)[:, 2])
+
+
+def sampling_spacings(
+    points: np.ndarray, tree: cKDTree | None = None, k: int = 32, sample: int = 4000, seed: int = 0
+) -> tuple[float, float]:
+    """The cloud's point spacing along its finest and its coarsest sampling direction (m): ``(fine,
+    coarse)``, medians over (at most ``sample``) points.
+
+    ``fine`` is the nearest-neighbour distance; ``coarse`` the distance to the nearest neighbour more than
+    60 deg off the local line through the point's 4 nearest neighbours. On an area scan or a voxelised
+    cloud both are alike (coarse ~1.1-1.4 x fine); a laser line profiler swept by a robot has ``fine``
+    ~1 mm along a line and ``coarse`` the 5-7 mm between lines: a neighbourhood must reach ``coarse`` to
+    hold surface rather than one line. Where no neighbour among the ``k`` nearest is off the line, the
+    ``k``-th distance counts (a lower bound).
+    """
+    P = as_points(points, min_points=6)
+    tree = tree if tree is not None else cKDTree(P)
+    q = P
+    if len(P) > sample:
+        q = P[np.random.default_rng(seed).choice(len(P), sample, replace=False)]
+    k = int(min(k, len(P) - 1))
+    d, idx = tree.query(q, k=k + 1, workers=-1)
+    D = P[idx[:, 1:]] - q[:, None, :]
+    near = D[:, :4]
+    t = largest_eigvec(np.einsum("nki,nkj->nij", near, near))
+    dist = d[:, 1:]
+    cos = np.abs(np.einsum("nkj,nj->nk", D, t)) / np.maximum(dist, 1e-15)
+    off = np.where(cos < 0.5, dist, np.inf)
+    coarse = np.min(off, axis=1)
+    coarse = np.where(np.isfinite(coarse), coarse, dist[:, -1])
+    return float(np.median(dist[:, 0])), float(np.median(coarse))

@@ -243,6 +243,11 @@ class EdgeSeamSettings(Settings):
     sigma: Length | None = Field(None, gt=0, description="Gaussian of eq. 17 [m]; default as the paper")
     min_intensity: float = Field(0.15, ge=0, description="minimum edge intensity (eq. 12) of an edge point")
     joints: tuple[str, ...] = Field(("concave", "groove"), description="which edge classes become seams")
+    contact_seams: bool = Field(
+        False,
+        description="keep the part's contact lines with the table or fixture plate it rests on or is held "
+        "against (found from the scan) as seams; by default they are not weld seams and are dropped",
+    )
     min_seam_length: Length = Field(0.02, gt=0, description="shorter seams are dropped [m]")
     spacing: Length | None = Field(None, gt=0, description="seam resampling step [m]; default r")
     wall_radius: Length | None = Field(
@@ -273,6 +278,7 @@ class EdgeSeamExtractor:
             sigma=self.s.sigma,
             min_intensity=self.s.min_intensity,
             joints=tuple(self.s.joints),
+            contact_seams=self.s.contact_seams,
             min_seam_length=self.s.min_seam_length,
             spacing=self.s.spacing,
             wall_radius=self.s.wall_radius,

@@ -79,17 +79,20 @@ def test_scores_of_a_perfect_a_shifted_and_a_flipped_result(laser_case):
 
 
 #: a fast subset (RGB-D, structured light, line laser; flat, vertical, turned frames) and the F1 today's
-#: stage reached on each (benchmarks/seam_eval.py baseline, docs/benchmarks.md): the stage must not do worse
+#: stage reached on each (benchmarks/seam_eval.py after issue 16's second session, docs/benchmarks.md; the
+#: baseline before it: 0.991 0.998 0.992 0.999 1.000 0.822 0.997 0.943 0.992 0.992): the stage must not
+#: do worse. 22 (line laser) and 44 (structured light, no viewpoint) need the scan-side orientation and the
+#: anisotropic neighbourhoods.
 SUBSET = {
-    0: 0.991,
+    0: 0.985,
     3: 0.998,
     5: 0.992,
     7: 0.999,
     17: 1.000,
-    22: 0.822,
-    40: 0.997,
-    44: 0.943,
-    46: 0.992,
+    22: 0.957,
+    40: 0.996,
+    44: 0.966,
+    46: 0.997,
     49: 0.992,
 }
 

@@ -30,6 +30,8 @@ The package's modules are the method's steps, in the order data flows through th
 
 ==================  ===========================================================================
 ``edges``           eqs. 11-17: adaptive neighbourhood, edge intensity, gradient, structure tensor
+``support``         the plane the part rests on or is held against (table, fixture); contact lines
+``orientation``     normals oriented towards the sensor side found from the scan (no viewpoint)
 ``candidates``      oriented normals and the joint class of each edge point
 ``sides``           the two sides of a crease (2-means of normals) and their side planes
 ``chaining``        clusters of weldable points ordered into pieces; bridging across gaps
@@ -113,6 +115,12 @@ from .ordering import (  # noqa: F401
     _smooth_positions,
     _straight,
 )
+from .orientation import (  # noqa: F401
+    propagate_signs,
+    scan_side_normals,
+    sensor_side,
+    viewing_axis,
+)
 from .pipeline import (  # noqa: F401
     _clusters,
     _cut_overshoot,
@@ -145,6 +153,12 @@ from .sides import (  # noqa: F401
     _wsum3,
     fit_two_planes,
     two_sides,
+)
+from .support import (  # noqa: F401
+    SupportPlane,
+    drop_contact,
+    on_support,
+    support_plane,
 )
 from .tracing import (  # noqa: F401
     _blocking_nodes,

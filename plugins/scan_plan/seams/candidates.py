@@ -25,18 +25,23 @@ def point_normals(
     oriented: np.ndarray | None = None,
     up: np.ndarray | None = None,
     table: NeighbourTable | None = None,
+    idx: np.ndarray | None = None,
 ) -> np.ndarray:
     """Unit PCA normals from the ``k`` nearest neighbours (the point itself included), oriented.
 
     ``table`` (a :class:`NeighbourTable` of ``P``) replaces the KD-tree query where its rows hold at
-    least ``k - 1`` neighbours (the nearest ones are picked from the row).
+    least ``k - 1`` neighbours (the nearest ones are picked from the row); ``idx`` (N, k), the k nearest
+    of each point (the point first), replaces both.
 
-    Orientation: along ``oriented`` (given normals, e.g. facing the sensor) when given; otherwise the
-    weld-cell heuristic: towards ``up`` where the surface is not steep, and for steep (wall) normals
-    away from the vertical axis through the cloud centroid (outward for a part standing on a table).
+    Orientation: along ``oriented`` (given normals, e.g. facing the sensor) when given; else, with
+    ``up``, the former weld-cell heuristic: towards ``up`` where the surface is not steep, and for steep
+    (wall) normals away from the axis along ``up`` through the cloud centroid; with neither, the PCA
+    normals' signs are arbitrary (:func:`~.orientation.scan_side_normals` orients them).
     """
     k = int(min(k, len(P)))
-    if table is not None and table.k >= k - 1:
+    if idx is not None:
+        pass
+    elif table is not None and table.k >= k - 1:
         part = np.argpartition(table.dist[:, 1:], k - 2, axis=1)[:, : k - 1] + 1
         idx = np.concatenate([table.idx[:, :1], np.take_along_axis(table.idx, part, 1)], axis=1)
         short = np.flatnonzero(~np.isfinite(np.take_along_axis(table.dist, part, 1)).all(axis=1))
@@ -47,8 +52,10 @@ def point_normals(
     n = smallest_eigvec(masked_covariance(offsets(P, idx), np.ones(idx.shape))[0])
     if oriented is not None:
         ref = oriented
+    elif up is None:
+        return n
     else:
-        u = _unit(np.asarray(up if up is not None else (0.0, 0.0, 1.0), dtype=float))
+        u = _unit(np.asarray(up, dtype=float))
         out = P - P.mean(axis=0)
         out = out - np.outer(out @ u, u)
         steep = np.abs(n @ u) < 0.3

@@ -198,6 +198,8 @@ def edge_scores(
     floor: float = 1.0,
     min_intensity: float = 0.0,
     neighbours: NeighbourTable | None = None,
+    min_radius: float = 0.0,
+    tree: cKDTree | None = None,
 ) -> EdgeScores:
     """Eqs. 11-17 on ``points``.
 
@@ -210,9 +212,12 @@ def edge_scores(
     ``neighbours``: a :class:`~weldcell.plugins.scan_plan.cloud_numerics.NeighbourTable` of these points (the
     one the denoising stage computed) replaces the KD-tree searches when it reaches far enough (its
     radius at least r); a table of other points or too short a reach is not used.
+
+    ``min_radius`` (m): r is at least this (an anisotropic scan's coarser spacing, see
+    :func:`~.pipeline.extract_seams`); ``tree``: a KD-tree of ``points`` to reuse.
     """
     P = _as_points(points, m)
-    tree = cKDTree(P)
+    tree = tree if tree is not None else cKDTree(P)
     table = _usable_table(P, neighbours)
     if radius is None:
         if table is not None:
@@ -223,7 +228,7 @@ def edge_scores(
         spacing = float(np.median(d1)) if len(d1) else 0.0
         if spacing <= 0:
             raise DataError("the cloud has duplicate points only", "pass a cloud of a real surface")
-        radius = radius_factor * spacing
+        radius = max(radius_factor * spacing, min_radius)
     nb = adaptive_neighbourhood(P, tree, float(radius), m, k_max, table)
     I = edge_intensity(P, nb)
     g = intensity_gradient(P, I, nb)

@@ -9,12 +9,13 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 from weldcell.sdk.errors import DataError
 
-from ..cloud_numerics import NeighbourTable
+from ..cloud_numerics import NeighbourTable, noise_level, sampling_spacings
 from .candidates import classify_edges, point_normals
 from .chaining import _cluster_pieces, _end_directions, _Piece, bridge_pieces
 from .edges import _usable_table, edge_scores
 from .model import CONCAVE, GROOVE, WELDABLE, SeamExtraction, SeamPolyline, _as_points
 from .ordering import _orthogonal_to_travel, _smooth_approach, _smooth_positions, _straight
+from .orientation import scan_side_normals
 from .refinement import (
     _curved_wall_nodes,
     _cut_end_corners,
@@ -24,6 +25,7 @@ from .refinement import (
     _trim_turning_ends,
 )
 from .settings import ChainSettings, SeamSettings
+from .support import SupportPlane, drop_contact, on_support, support_plane
 from .tracing import grow_pieces
 
 
@@ -238,8 +240,15 @@ def extract_seams(
     Args:
         points: (N, 3) cloud (ideally denoised and voxel down-sampled, spacing ~1-2 mm).
         normals: optional (N, 3) normals; only their orientation (sign) is used, to orient the PCA
-            normals: pass them facing the sensor/outward. Without them the orientation heuristic of
-            :func:`point_normals` (``up``) is used.
+            normals: pass them facing the sensor/outward. Without them the normals face the sensor side
+            found from the scan itself (:mod:`~.orientation`: the side of the supporting table or
+            fixture the part is on, propagated along the smoothest paths), or ``up`` when it is set.
+        contact_seams: keep the part's contact lines with the plane it rests on or is held against
+            (:mod:`~.support`, found from the cloud); by default they are not seams and are dropped.
+        coarse_reach: on an anisotropic scan (a laser line profiler: ~1 mm along a line, 5-7 mm between
+            lines) r of eq. 11 and the side fits reach at least this x the coarse spacing
+            (:func:`~weldcell.plugins.scan_plan.cloud_numerics.sampling_spacings`), the PCA normals hold as
+            many neighbours as that disc; isotropic clouds are unchanged (3 x spacing is larger).
         m: minimum neighbourhood size (eq. 11). t: threshold on ``Tr(H)^3/Det(H)`` (eq. 16, >= 27).
         sigma: Gaussian of eq. 17 in m (default: per-point std of neighbour distances, as the paper).
         radius: r of eq. 11 in m (default ``radius_factor`` x median point spacing).
@@ -269,21 +278,76 @@ def extract_seams(
     s = SeamSettings.of(settings, **overrides)
     s.check()
     P = _as_points(points, s.m)
+    tree = cKDTree(P)
+    fine, coarse = sampling_spacings(P, tree)
     es = edge_scores(
         P,
         m=s.m,
         radius=s.radius,
         radius_factor=s.radius_factor,
-        k_max=s.k_max,
+        k_max=_wide_enough(s.k_max, s.coarse_reach * coarse, fine, coarse),
         sigma=s.sigma,
         floor=s.floor,
         min_intensity=s.min_intensity,
         neighbours=neighbours,
+        min_radius=s.coarse_reach * coarse,
+        tree=tree,
     )
-    I, score, r, tree = es.intensity, es.ratio, es.radius, es.tree
+    I, score, r = es.intensity, es.ratio, es.radius
+    r_fine = min(r, s.radius_factor * fine) if s.radius is None else r
     table = _usable_table(P, neighbours)
     with np.errstate(invalid="ignore"):
         edge = (score >= s.t) & (I >= s.min_intensity)
+    N, plane = _normals(P, tree, normals, s, table, fine, coarse)
+    support = None if s.contact_seams or plane is None or not plane.holds_part else plane
+    labels = np.zeros(len(P), dtype=np.int8)
+    cand = np.flatnonzero(edge)
+    seams: list[SeamPolyline] = []
+    if len(cand):
+        R = s.class_radius(r, r_fine)
+        lab, appr = classify_edges(
+            P,
+            N,
+            tree,
+            cand,
+            R,
+            min_crease_angle=s.min_crease_angle,
+            groove_max_angle=s.groove_max_angle,
+            viewpoints=viewpoints,
+            max_incidence=s.max_incidence,
+        )
+        labels[cand] = lab
+        keep = np.isin(lab, [WELDABLE[j] for j in s.joints]) & ~on_support(P, tree, support, P[cand], R)
+        cfg = s.chain(r, r_fine)
+        seams = chain_seams(P, N, tree, cand[keep], lab[keep], appr[keep], cfg)
+        if support is not None:
+            seams = drop_contact(P, tree, seams, support, cfg.side_radius, cfg.min_length)
+    params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
+    params.update(spacing=(fine, coarse), support=None if support is None else support.normal.tolist())
+    return SeamExtraction(edge, score, I, labels, seams, r, params)
+
+
+def _wide_enough(k_max: int, reach: float, fine: float, coarse: float) -> int:
+    """``k_max`` neighbour columns, or as many as a disc of radius ``reach`` holds on a scan sampled at
+    ``fine`` x ``coarse`` (plus half again: the density varies), whichever is more."""
+    return int(max(k_max, np.ceil(1.5 * np.pi * reach**2 / max(fine * coarse, 1e-18))))
+
+
+def _normals(
+    P: np.ndarray,
+    tree: cKDTree,
+    normals: np.ndarray | None,
+    s: SeamSettings,
+    table: NeighbourTable | None,
+    fine: float,
+    coarse: float,
+) -> tuple[np.ndarray, SupportPlane | None]:
+    """Oriented PCA normals and the plane the part rests on (:func:`~.support.support_plane`, None when
+    the scan holds none). Normals are oriented along ``normals`` when given, towards ``s.up`` when set,
+    else towards the sensor side found from the scan itself (:func:`~.orientation.scan_side_normals`).
+    The PCA neighbourhood holds 10 points, or as many as reach ``s.coarse_reach`` x the coarse spacing
+    (an anisotropic scan); the RANSAC band of the support comes from the cloud's noise
+    (:func:`~weldcell.plugins.scan_plan.cloud_numerics.noise_level` within that reach)."""
     oriented = None
     if normals is not None:
         oriented = np.asarray(normals, dtype=float)
@@ -292,24 +356,16 @@ def extract_seams(
                 f"normals must be a finite {P.shape} array, got {oriented.shape}",
                 "pass one normal per point or normals=None",
             )
-    N = point_normals(P, tree, 10, oriented, np.asarray(s.up, dtype=float), table)
-    labels = np.zeros(len(P), dtype=np.int8)
-    cand = np.flatnonzero(edge)
-    seams: list[SeamPolyline] = []
-    if len(cand):
-        lab, appr = classify_edges(
-            P,
-            N,
-            tree,
-            cand,
-            s.class_radius_factor * r,
-            min_crease_angle=s.min_crease_angle,
-            groove_max_angle=s.groove_max_angle,
-            viewpoints=viewpoints,
-            max_incidence=s.max_incidence,
-        )
-        labels[cand] = lab
-        keep = np.isin(lab, [WELDABLE[j] for j in s.joints])
-        seams = chain_seams(P, N, tree, cand[keep], lab[keep], appr[keep], s.chain(r))
-    params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
-    return SeamExtraction(edge, score, I, labels, seams, r, params)
+    k = min(_wide_enough(10, s.coarse_reach * coarse, fine, coarse) if coarse > 1.5 * fine else 10, len(P))
+    up = np.asarray(s.up, dtype=float) if s.up is not None else None
+    if oriented is not None or up is not None:
+        N = point_normals(P, tree, k, oriented, up, table)
+        idx = None
+    else:
+        _, idx = tree.query(P, k=k, workers=-1)
+        N = point_normals(P, tree, k, None, None, None, idx=idx)
+    noise = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
+    plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008))
+    if idx is not None:
+        N = scan_side_normals(P, N, idx, plane)
+    return N, plane

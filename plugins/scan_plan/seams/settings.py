@@ -19,8 +19,13 @@ class SeamSettings:
     >= 27), ``sigma`` (Gaussian of eq. 17; None = per point, as the paper), ``radius`` (r of eq. 11;
     None = ``radius_factor`` x median spacing), ``k_max`` (neighbour columns), ``floor`` (noise floor
     added to H, x median Tr(H)/3), ``min_intensity`` (edge points also need I >= this, eq. 12).
-    Classes: ``up`` (normal orientation without oriented normals), ``joints`` (classes that become
-    seams), ``min_crease_angle`` / ``groove_max_angle`` / ``class_radius_factor`` (side fits at this x r),
+    Classes: ``up`` (None: normals without a given orientation face the sensor side found from the scan
+    itself, :mod:`~.orientation`; a direction: the former heuristic, towards it where not steep),
+    ``joints`` (classes that become seams), ``contact_seams`` (keep the part's contact lines with the
+    plane it rests on or is held against, :mod:`~.support`; default: dropped), ``coarse_reach``
+    (neighbourhoods reach at least this x the scan's coarser sampling spacing, e.g. between the lines
+    of a laser line scan), ``min_crease_angle`` / ``groove_max_angle`` / ``class_radius_factor`` (side
+    fits at this x r),
     ``max_incidence`` (both sides must face a recorded camera at less than this).
     Chaining: ``cluster_eps`` (None = 2 r), ``spacing`` (None = r), ``min_seam_length``,
     ``smooth_window`` (nodes), ``smooth_length``, ``refine``, ``fit_radius`` (None = max(class radius,
@@ -35,7 +40,9 @@ class SeamSettings:
     k_max: int = 32
     floor: float = 1.0
     min_intensity: float = 0.15
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    up: tuple[float, float, float] | None = None
+    contact_seams: bool = False
+    coarse_reach: float = 1.25
     joints: tuple[str, ...] = ("concave", "groove")
     min_crease_angle: float = float(np.deg2rad(35.0))
     groove_max_angle: float = float(np.deg2rad(75.0))
@@ -93,14 +100,25 @@ class SeamSettings:
                 f"max_grow must be >= 0 m, got {self.max_grow}", "pass e.g. 0.3 (0 disables tracing)"
             )
         _positive(self.smooth_length, "smooth_length")
+        _positive(self.coarse_reach, "coarse_reach")
+        if self.up is not None and (len(self.up) != 3 or not np.linalg.norm(self.up) > 0):
+            raise DataError(f"up must be a non-zero 3-vector or None, got {self.up}", "pass up=None")
 
-    def chain(self, r: float) -> ChainSettings:
-        """The chaining settings for eq. 11 radius ``r`` (m)."""
-        R = self.class_radius_factor * r
+    def class_radius(self, r: float, r_fine: float) -> float:
+        """Radius (m) of the side fits that classify edge points: ``class_radius_factor`` x the radius
+        ``r_fine`` of the fine spacing, but at least the eq. 11 radius ``r`` (which reaches across an
+        anisotropic scan's coarse spacing)."""
+        return max(self.class_radius_factor * r_fine, r)
+
+    def chain(self, r: float, r_fine: float | None = None) -> ChainSettings:
+        """The chaining settings for eq. 11 radius ``r`` (m) and ``r_fine`` (m, default r): the radius
+        the fine spacing alone gives (smaller on an anisotropic scan)."""
+        r_fine = r if r_fine is None else r_fine
+        R = self.class_radius(r, r_fine)
         approach_radius = self.fit_radius or max(R, 0.008)
         return ChainSettings(
             eps=self.cluster_eps or 2.0 * r,
-            spacing=self.spacing or r,
+            spacing=self.spacing or r_fine,
             side_radius=max(R, 0.006),
             approach_radius=approach_radius,
             min_length=self.min_seam_length,
