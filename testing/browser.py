@@ -42,6 +42,8 @@ _DOM_PROBE = """JSON.stringify({
   scenes_drawn: Array.from(document.querySelectorAll('.wc-scene .plotly-graph-div')).filter(
       d => d.querySelector('.gl-container canvas') && d.querySelector('.main-svg')).length,
   webgl_missing: document.body.innerText.includes('WebGL is not supported'),
+  scene_notes: Array.from(document.querySelectorAll('.wc-scene .warn')).map(p => p.textContent),
+  unpack: window.wcUnpack || null,
   tables: document.querySelectorAll('table.wc-table').length,
   table_rows: Array.from(document.querySelectorAll('table.wc-table')).map(t => t.tBodies[0].rows.length),
   images: Array.from(document.images).filter(i => i.complete && i.naturalWidth > 0).length,
@@ -193,7 +195,9 @@ def inspect_page(
     if chromium is None:
         raise FileNotFoundError("no chromium binary (Debian: apt-get install chromium)")
     url = Path(html).resolve().as_uri()
-    with tempfile.TemporaryDirectory(prefix="wc-chromium-") as profile:
+    # Chromium's helper processes can still write to the profile while it is removed after the browser
+    # exited: a cleanup error must not fail the check (the folder is removed once they are gone).
+    with tempfile.TemporaryDirectory(prefix="wc-chromium-", ignore_cleanup_errors=True) as profile:
         args = [
             chromium,
             "--headless",

@@ -17,6 +17,7 @@ from pydantic import Field
 from scipy.spatial.transform import Rotation
 from weldcell.sdk.units import Duration, Length, Speed
 
+from .confdata import plan_configs
 from .plan import Motion, ProgramPlan, ProgramSettings, build_plan, check_plan
 from .programs import ExportResult
 
@@ -50,17 +51,19 @@ class KrlSettings(ProgramSettings):
     arc_on_delay: Duration = Field(0.0, ge=0, description="wait after arc on before moving [s]")
 
 
-def _e6pos(T: np.ndarray) -> str:
+def _e6pos(T: np.ndarray, status_turn: tuple[int, int] | None = None) -> str:
     x, y, z = np.asarray(T)[:3, 3] * 1000.0
     a, b, c = kuka_abc(T)
-    return f"{{E6POS: X {x:.3f}, Y {y:.3f}, Z {z:.3f}, A {a:.4f}, B {b:.4f}, C {c:.4f}}}"
+    st = f", S {status_turn[0]}, T {status_turn[1]}" if status_turn is not None else ""
+    return f"{{E6POS: X {x:.3f}, Y {y:.3f}, Z {z:.3f}, A {a:.4f}, B {b:.4f}, C {c:.4f}{st}}}"
 
 
-def _krl_seam(seam, si: int, s: KrlSettings, names: bool) -> tuple[list[str], list[str]]:
-    """The seam's subprogram lines and (``names``) its .dat declarations."""
+def _krl_seam(seam, si: int, s: KrlSettings, names: bool, conf) -> tuple[list[str], list[str]]:
+    """The seam's subprogram lines and (``names``) its .dat declarations; ``conf`` yields each motion's
+    (Status, Turn) or None."""
     body, dat = [f"DEF {seam.routine}( )", f"; seam {seam.id} ({seam.joint})"], []
     for k, m in enumerate(seam.motions):
-        target = _e6pos(m.pose)
+        target = _e6pos(m.pose, next(conf, None))
         if names:
             name = f"XP{si}_{k}"
             dat.append(f"DECL E6POS {name}={target}")
@@ -92,7 +95,12 @@ def _krl(plan: ProgramPlan, s: KrlSettings, names: bool) -> tuple[str, str]:
         a, b, c = kuka_abc(plan.T_flange_tcp)
         tool = f"{{X {x:.3f}, Y {y:.3f}, Z {z:.3f}, A {a:.4f}, B {b:.4f}, C {c:.4f}}}"
     base = f"BASE_DATA[{s.base_number}]" if s.base_number else "$NULLFRAME"
-    note = "no S and T given: the robot keeps its current posture (try the first PTP slowly)"
+    configs, how = plan_configs(plan, "kuka")
+    if configs is not None:
+        note = f"S and T {how} (PTP moves to them; LIN keeps the posture it starts in)"
+    else:
+        note = f"no S and T given ({how}): the robot keeps its current posture (try the first PTP slowly)"
+    conf = iter(configs or [])
     head = [f"; {h}" for h in plan.header(note, "TOOL_DATA[1] is used unless tool_number says otherwise")]
     src = [
         "&ACCESS RVP",
@@ -110,7 +118,7 @@ def _krl(plan: ProgramPlan, s: KrlSettings, names: bool) -> tuple[str, str]:
     ]
     dat = ["&ACCESS RVP", "&REL 1", f"DEFDAT {s.program_name}", *head]
     for si, seam in enumerate(plan.seams):
-        body, decl = _krl_seam(seam, si, s, names)
+        body, decl = _krl_seam(seam, si, s, names, conf)
         src += ["", *body]
         dat += decl
     dat.append("ENDDAT")
@@ -165,13 +173,13 @@ def _fanuc_motion(m: Motion, n: int, s: FanucSettings) -> str:
     return f"L P[{n}] {max(1, round(m.speed * 1000.0))}mm/sec {term}"
 
 
-def _fanuc_pos(n: int, T: np.ndarray, s: FanucSettings) -> list[str]:
+def _fanuc_pos(n: int, T: np.ndarray, s: FanucSettings, config: str | None = None) -> list[str]:
     x, y, z = np.asarray(T)[:3, 3] * 1000.0
     w, p, r = fanuc_wpr(T)
     return [
         f"P[{n}]{{",
         "   GP1:",
-        f"\tUF : {s.uframe}, UT : {s.utool},\t\tCONFIG : 'N U T, 0, 0, 0',",
+        f"\tUF : {s.uframe}, UT : {s.utool},\t\tCONFIG : '{config or 'N U T, 0, 0, 0'}',",
         f"\tX = {x:10.3f}  mm,\tY = {y:10.3f}  mm,\tZ = {z:10.3f}  mm,",
         f"\tW = {w:10.3f} deg,\tP = {p:10.3f} deg,\tR = {r:10.3f} deg",
         "};",
@@ -185,7 +193,12 @@ def export_fanuc(data: dict, settings: FanucSettings | None = None) -> ExportRes
     check_plan(plan, s)
     on = f"Arc Start[{s.arc_schedule}]" if s.arc == "arctool" else f"DO[{s.arc_output}]=ON"
     off = f"Arc End[{s.arc_schedule}]" if s.arc == "arctool" else f"DO[{s.arc_output}]=OFF"
-    note = "CONFIG N U T 0 0 0 on every P, check it matches the robots posture"
+    configs, how = plan_configs(plan, "fanuc")
+    if configs is not None:
+        note = f"CONFIG {how}"
+    else:
+        note = f"CONFIG N U T 0 0 0 on every P ({how}), check it matches the robots posture"
+    conf = iter(configs or [])
     head = plan.header(note, f"UTOOL {s.utool} must hold the torch TCP")
     notes = [h.replace("'", "").replace(";", ",") for h in head]  # TP comments: no ; or '
     mn = [f"!{part}" for h in notes for part in textwrap.wrap(h, 30)]
@@ -196,7 +209,7 @@ def export_fanuc(data: dict, settings: FanucSettings | None = None) -> ExportRes
         for m in seam.motions:
             n += 1
             mn.append(_fanuc_motion(m, n, s))
-            pos += _fanuc_pos(n, m.pose, s)
+            pos += _fanuc_pos(n, m.pose, s, next(conf, None))
             if m.process == "arc_start":
                 mn.append(on)
             elif m.process == "arc_end":

@@ -51,6 +51,11 @@ class ProgramSettings(Settings):
         "motion is checked through the safety gate with it before the program is written",
     )
     safety: SafetyLimits = Field(default_factory=SafetyLimits, description="the cell's motion limits")
+    start_joints: tuple[float, ...] | None = Field(
+        None,
+        description="joints the robot starts the program from [rad] (default: the model's home): the first "
+        "approach is checked from them and the configurations written follow the IK solutions nearest them",
+    )
 
 
 @dataclass(frozen=True)
@@ -85,6 +90,8 @@ class ProgramPlan:
     tcp_given: bool
     skipped: list[str] = field(default_factory=list)
     checked_with: str | None = None
+    model: object | None = None  # the RobotModel the plan was checked with
+    joints: list[np.ndarray] = field(default_factory=list)  # per motion: the joints the gate tracked
 
     @property
     def max_position_error(self) -> float:
@@ -100,7 +107,7 @@ class ProgramPlan:
 
     def header(self, configuration: str, without_tcp: str = "a zero tool is declared") -> list[str]:
         """Comment lines every program starts with (without the comment marker); ``configuration`` says how
-        the language's robot configuration is handled (no confdata is computed from the model yet),
+        the language's robot configuration is handled (computed from the robot model's IK, or why not),
         ``without_tcp`` what the program does when no TCP was given."""
         n_planned = sum(s.reduction.n_planned for s in self.seams)
         n_kept = sum(len(s.reduction.poses) for s in self.seams)
@@ -189,8 +196,18 @@ def check_plan(plan: ProgramPlan, s: ProgramSettings) -> None:
     from weldcell.hal.kinematics import get_model
 
     model = get_model(s.robot_model)
-    check_motions(plan.motions, SafetyGate(s.safety, model), plan.T_flange_tcp, s.accel, _labels(plan))
-    plan.checked_with = model.name
+    joints: list[np.ndarray] = []
+    gate = SafetyGate(s.safety, model)
+    start = None
+    if s.start_joints is not None:
+        start = np.asarray(s.start_joints, dtype=float)
+        if start.shape != (model.dof,) or not model.within_limits(start):
+            raise DataError(
+                f"start_joints {list(s.start_joints)}: not a joint vector of {model.name} inside its limits",
+                f"give {model.dof} joint angles in radians inside the limits, or leave start_joints unset",
+            )
+    check_motions(plan.motions, gate, plan.T_flange_tcp, s.accel, _labels(plan), joints, start)
+    plan.checked_with, plan.model, plan.joints = model.name, model, joints
 
 
 def _labels(plan: ProgramPlan) -> list[str]:
@@ -200,12 +217,16 @@ def _labels(plan: ProgramPlan) -> list[str]:
     return out
 
 
-def check_motions(motions, gate: SafetyGate, T_ft: np.ndarray, accel: float, labels=None):
-    """The gate on a motion list: the first joint move at its target (the start is unknown), later joint
-    moves along the whole joint-space line, every linear move along its line from the previous pose.
-    Returns the final joints."""
+def check_motions(
+    motions, gate: SafetyGate, T_ft: np.ndarray, accel: float, labels=None, joints=None, start=None
+):
+    """The gate on a motion list: the first joint move at its target (from ``start`` joints when given,
+    along the whole joint-space line; else the start is unknown: the IK solution nearest the model's home),
+    later joint moves along the whole joint-space line to the solution nearest the previous joints, every
+    linear move along its line from the previous pose (joints tracked). Returns the final joints;
+    ``joints`` (a list) receives the joints at every motion's target."""
     inv_ft = invert(T_ft)
-    q, T_prev = None, None
+    q, T_prev = start, None
     for i, m in enumerate(motions):
         what = labels[i] if labels else f"move {i + 1}"
         try:
@@ -224,5 +245,7 @@ def check_motions(motions, gate: SafetyGate, T_ft: np.ndarray, accel: float, lab
                 f"the program would be refused: {e.message}",
                 f"{e.fix}; nothing was exported (move the part, change the robot or the limits)",
             ) from None
+        if joints is not None and q is not None:
+            joints.append(np.array(q, dtype=float))
         T_prev = m.pose
     return q

@@ -20,6 +20,7 @@ from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import AngularAcceleration, AngularSpeed, Duration, Length, Speed
 from weldcell.sdk.weldpath import WeldPath
 
+from .confdata import plan_configs
 from .plan import ProgramPlan, ProgramSettings, build_plan, check_plan
 
 
@@ -169,6 +170,8 @@ def export_rapid(data: dict, settings: RapidSettings | None = None) -> ExportRes
         f"    PERS seamdata {s.seamdata} := [{s.purge_time:g},{s.preflow_time:g},{zero},0,0,0,0,0,{zero},0,0,"
         f"{zero},0,0,{zero},0];"
     )
+    configs, how = plan_configs(plan, "abb")
+    conf = iter(configs or [])
     targets, procs = [], []
     for si, seam in enumerate(plan.seams):
         wd = f"{s.welddata}_{si}"
@@ -182,9 +185,10 @@ def export_rapid(data: dict, settings: RapidSettings | None = None) -> ExportRes
         for k, m in enumerate(seam.motions):
             name = f"p{si}_{k}"
             px, py, pz, ax, ay, az, aw = T_to_pose7(m.pose)
+            cf = ",".join(str(v) for v in next(conf, (0, 0, 0, 0)))
             targets.append(
                 f"    CONST robtarget {name} := [[{px * 1000:.3f},{py * 1000:.3f},{pz * 1000:.3f}],"
-                f"[{aw:.7f},{ax:.7f},{ay:.7f},{az:.7f}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];"
+                f"[{aw:.7f},{ax:.7f},{ay:.7f},{az:.7f}],[{cf}],[9E9,9E9,9E9,9E9,9E9,9E9]];"
             )
             zone = zones[_zone_mm(m.blend)] if _zone_mm(m.blend) > 0 else "fine"
             if m.kind == "joint":
@@ -198,17 +202,30 @@ def export_rapid(data: dict, settings: RapidSettings | None = None) -> ExportRes
             else:
                 body.append(f"        MoveL {name}, {s.approach_speed}, fine, {tool};")
         procs += [*body, "    ENDPROC", ""]
+    if configs is not None:
+        head = plan.header(f"confdata {how}; configuration monitoring on")
+        conf_note = [
+            "    ! ConfJ\\On / ConfL\\On: each robtarget's confdata [cf1,cf4,cf6,cfx] is the configuration",
+            "    ! the path was checked with; the robot stops rather than run another configuration.",
+        ]
+        switch = "On"
+    else:
+        head = plan.header(f"confdata not computed ({how}); configuration monitoring off")
+        conf_note = [
+            "    ! ConfL\\Off / ConfJ\\Off: robtargets carry no computed confdata; the robot keeps the",
+            "    ! configuration closest to its current one. Run the program once in manual reduced speed.",
+        ]
+        switch = "Off"
     out = [
         f"MODULE {s.module_name}",
-        *(f"    ! {h}" for h in plan.header("confdata not computed; configuration monitoring off")),
-        "    ! ConfL\\Off / ConfJ\\Off: robtargets carry no computed confdata; the robot keeps the",
-        "    ! configuration closest to its current one. Run the program once in manual reduced speed.",
+        *(f"    ! {h}" for h in head),
+        *conf_note,
         *decl,
         *targets,
         "",
         "    PROC main()",
-        "        ConfJ\\Off;",
-        "        ConfL\\Off;",
+        f"        ConfJ\\{switch};",
+        f"        ConfL\\{switch};",
         *(f"        {seam.routine};" for seam in plan.seams),
         "    ENDPROC",
         "",

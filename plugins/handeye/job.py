@@ -4,7 +4,9 @@ in the cell (eye-on-base, ``T_base_camera``) or mounted on the robot's flange (e
 
 Plan calibration poses (a grid in a box of the robot base frame with bounded random tilts: the flange
 facing the camera, or, eye-in-hand, the camera facing a fixed ISO 9409-1 flange plate), drive them one
-at a time through the safety gate (a refused pose is skipped with a note), scan the flange at each,
+at a time through the safety gate (poses outside the robot's reach or the workspace box, with its tool,
+are replaced before the run by :mod:`.pose_plan`; a pose refused anyway is skipped with a note), scan
+the flange at each,
 segment it and fit its centre. Eye-on-base feeds each pair to Algorithm 1 until its cost reaches
 ``e_required``; eye-in-hand (Fig. 14a, §4.1: the plate's position ``q`` in the base is a second
 unknown) refits ``X c_i = inv(T_base_flange_i) q`` (:mod:`featurefit`) after each centre and stops
@@ -17,10 +19,13 @@ RUN_DIR``), the report and, in the simulated cell, the error against the camera'
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from weldcell.hal.sim import true_camera_mount, world_of
 from weldcell.plugins.handeye.featurefit import fit_with_unknown_point, rotation_diversity, translation_sigma
+from weldcell.plugins.handeye.pose_plan import PoseCheck, Replacement, replace_unreachable
 from weldcell.plugins.handeye.stages import predicted_p_cam
 from weldcell.sdk.calibration import CalibrateSettings
 from weldcell.sdk.cloud import PointCloud, read_cloud, write_cloud
@@ -94,11 +99,47 @@ def nominal_T_flange_camera(ctx) -> np.ndarray:
     return T_from_rpy(cam.rpy, cam.xyz)
 
 
-def plan_in_hand(s: CalibrateSettings, T_flange_camera: np.ndarray, seed: int) -> np.ndarray:
+def _drawer(s: CalibrateSettings, toward) -> Callable[[np.ndarray, int], np.ndarray]:
+    """A new planned pose at a given position (the plan's facing and tilt bounds, its own seed)."""
+
+    def draw(p: np.ndarray, k: int) -> np.ndarray:
+        return plan_poses(p, p, 1, toward, s.max_tilt, s.max_spin, k)[0][0]
+
+    return draw
+
+
+def reachable_plan(
+    s: CalibrateSettings,
+    poses: np.ndarray,
+    toward,
+    check: PoseCheck | None,
+    seed: int,
+    to_flange=None,
+    start=None,
+) -> tuple[np.ndarray, list[Replacement]]:
+    """The planned poses with each one the robot cannot take from the previous one (``check``: the gate's
+    workspace box, reach, IK and joint move with the robot's tool; the first from the joints ``start``)
+    replaced up front (:mod:`.pose_plan`); unchanged without a check."""
+    if check is None:
+        return poses, []
+    centre = (np.asarray(s.box_min, float) + np.asarray(s.box_max, float)) / 2
+    draw = _drawer(s, toward)
+    return replace_unreachable(poses, centre, draw, check, seed, to_flange=to_flange, start=start)
+
+
+def plan_in_hand(
+    s: CalibrateSettings,
+    T_flange_camera: np.ndarray,
+    seed: int,
+    check: PoseCheck | None = None,
+    replaced: list | None = None,
+    start=None,
+) -> np.ndarray:
     """Eye-in-hand flange poses (n, 4, 4): :func:`plan_poses` plans the camera (grid in the box,
     optical axis toward the feature, bounded random tilts and spin) and the nominal mount turns each
-    camera pose into the flange pose that carries it there. Refuses a plan whose first ``min_poses``
-    rotate too little to tell the feature from the mount (:func:`rotation_diversity`)."""
+    camera pose into the flange pose that carries it there; with ``check``, camera poses the robot cannot
+    take are replaced first (listed in ``replaced``). Refuses a plan whose first ``min_poses`` rotate too
+    little to tell the feature from the mount (:func:`rotation_diversity`)."""
     if s.feature_prior is None:
         raise JobError(
             "eye-in-hand calibration needs the fixed feature's rough position: [job.settings] "
@@ -108,6 +149,9 @@ def plan_in_hand(s: CalibrateSettings, T_flange_camera: np.ndarray, seed: int) -
         )
     toward = s.face_toward if s.face_toward is not None else s.feature_prior
     cams, _ = plan_poses(s.box_min, s.box_max, s.n_poses, toward, s.max_tilt, s.max_spin, seed)
+    cams, swaps = reachable_plan(s, cams, toward, check, seed, to_flange=invert(T_flange_camera), start=start)
+    if replaced is not None:
+        replaced += swaps
     poses = cams @ invert(T_flange_camera)
     first = poses[: s.min_poses]
     turn = rotation_diversity(np.transpose(first[:, :3, :3], (0, 2, 1)))
@@ -433,11 +477,29 @@ def run(ctx) -> dict:
     config = _config(ctx)
     stage = ctx.stage("handeye")
     seed = ctx.profile.cell.seed if s.seed is None else s.seed
+    robot = ctx.device("robot")
+    check = PoseCheck(robot.gate, robot.T_flange_tcp, robot.motion.joint_speed, robot.motion.joint_accel)
+    start = robot.state().q  # the moves are checked from where the robot stands (after a resume: there)
+    replaced: list[Replacement] = []
     if config == "eye-in-hand":
-        poses, T_v = plan_in_hand(s, nominal_T_flange_camera(ctx), seed), None
+        poses, T_v = plan_in_hand(s, nominal_T_flange_camera(ctx), seed, check, replaced, start), None
     else:
         toward = s.face_toward if s.face_toward is not None else nominal_T_base_camera(ctx)[:3, 3]
         poses, T_v = plan_poses(s.box_min, s.box_max, s.n_poses, toward, s.max_tilt, s.max_spin, seed)
+        if s.verification_scan and robot.gate.model is not None and start is not None:
+            try:  # the verification scan at the box centre comes first
+                start = robot.gate.solve(T_v, start, "verification pose")
+            except SafetyError:
+                pass  # refused when it is visited, with its own message
+        poses, replaced = reachable_plan(s, poses, toward, check, seed, start=start)
+    if replaced:
+        moved = ", ".join(f"{r.index} ({1e3 * r.moved:.0f} mm)" for r in replaced)
+        ctx.reporter.info(
+            f"planned poses: {len(replaced)} of {len(poses)} could not be reached (from the pose before) "
+            f"inside the robot's reach and the cell's workspace box with the tool; replaced by poses nearer "
+            f"the box centre (how much nearer): {moved}"
+        )
+        ctx.state.data["notes"]["replanned"] = [f"pose {r.index}: {r.reason}" for r in replaced]
     truth = ground_truth(ctx, config)
 
     _check_captures(ctx)

@@ -20,7 +20,7 @@ from typing import Any
 import click
 import numpy as np
 from pydantic import ValidationError
-from weldcell.sdk.artifacts import save_figure, write_json, write_text
+from weldcell.sdk.artifacts import write_json, write_text
 from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, UsageError
 from weldcell.sdk.geometry import T_from_rpy, rotation_angle
@@ -160,26 +160,29 @@ def plan_seams(
     return SeamRun(path, clean, extraction, timings)
 
 
-def write_seam_picture(out_dir: Path, cloud: PointCloud, path: WeldPath, title: str) -> Path:
-    """The job report's picture (top, front and side views of the cloud, seams and torch frames)."""
-    import matplotlib
+def write_seam_report(
+    out_dir: Path, source: Path, cloud: PointCloud, path: WeldPath, summary: list[str], outputs: list[Path]
+) -> list[Path]:
+    """The scan-and-plan job's report for one cloud: ``report.html`` (self-contained: verdict, seam table,
+    3-D view, cross-sections), ``report.md``, the PNGs and ``summary.txt`` in ``out_dir``; ``outputs``
+    are the files the command wrote besides. Returns the report's files."""
+    from weldcell.plugins.scan_plan.report import ReportPage, verdict_of, write_pages
+    from weldcell.plugins.scan_plan.report_figures import seam_measures
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from weldcell.plugins.scan_plan.report import plot_cloud_and_paths
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(0)
-    fig, axes = plt.subplots(1, 3, figsize=(18, 6))
-    for ax, view in zip(axes, ("top", "front", "side"), strict=True):
-        plot_cloud_and_paths(ax, cloud.points, path, None, view, rng)
-    if path.seams:
-        axes[0].legend(loc="upper right")
-    fig.suptitle(title)
-    fig.tight_layout()
-    f = save_figure(fig, out_dir / "seams.png", dpi=110)  # atomic and durable
-    plt.close(fig)
-    return f
+    measures = seam_measures(path, None)
+    v = verdict_of({}, None, path, None, measures)
+    text = "\n".join(summary) + "\n"
+    files = [[str(source), "the cloud read"]] + [[str(f), "written by this command"] for f in outputs]
+    page = ReportPage(
+        out_dir,
+        f"Seams: {source.name}",
+        f"weldcell seam {source} · {len(cloud)} points processed",
+        files=files,
+        cloud_label="cloud",
+        md_title=f"Seam report: {source.name}",
+    )
+    written = write_pages(page, v, text, None, np.asarray(cloud.points, dtype=float), path, None, measures)
+    return [*written, write_text(out_dir / "summary.txt", text)]
 
 
 def seam_table(path: WeldPath) -> list[str]:
@@ -227,7 +230,8 @@ def _pm():
     "--report",
     "report_dir",
     type=click.Path(path_type=Path),
-    help="Write seams.png and summary.txt into this folder.",
+    help="Write report.html (self-contained: open it in a browser), report.md, the pictures and "
+    "summary.txt into this folder.",
 )
 @click.option(
     "--profile",
@@ -327,7 +331,6 @@ def seam_command(
         f"timings         read {t_read:.2f}s, {timing}  ({length * 1000 / runtime:.0f} mm of seam per s)"
     )
     if report_dir is not None:
-        pic = write_seam_picture(report_dir, result.cloud, path, f"{cloud.name}: {len(path.seams)} seam(s)")
         summary = [
             f"weldcell seam {cloud}",
             f"points {len(pc)}, processed {len(result.cloud)}",
@@ -335,8 +338,7 @@ def seam_command(
             *table,
             f"timings read {t_read:.2f}s, {timing}",
         ]
-        write_text(report_dir / "summary.txt", "\n".join(summary) + "\n")
-        written += [pic, report_dir / "summary.txt"]
+        written += write_seam_report(report_dir, cloud, result.cloud, path, summary, list(written))
     click.echo("written         " + ", ".join(str(f) for f in written))
 
 

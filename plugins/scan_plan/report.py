@@ -2,11 +2,14 @@
 ``report.html`` (one self-contained page: verdict first, an interactive 3-D view of the model, seams
 and torch frames, a table per seam, cross-sections with the torch drawn), ``report.md`` and the PNGs
 for people who read files in a terminal. Each picture answers one question (report_figures.py).
+``weldcell seam --report DIR`` writes the same pages for one cloud (:func:`write_pages`, no
+reconstruction section).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,7 +24,7 @@ from weldcell.plugins.scan_plan.report_figures import (
     seam_error_figure,
     seam_measures,
 )
-from weldcell.sdk.artifacts import write_bytes
+from weldcell.sdk.artifacts import write_bytes, write_text
 from weldcell.sdk.html_report import figure_png
 
 SEAM_ERROR_ATTENTION = 0.002
@@ -39,6 +42,21 @@ class Verdict:
     found: list[str] = field(default_factory=list)
     refused: list[str] = field(default_factory=list)
     attention: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ReportPage:
+    """Where a seam report is written and what its page says around the results: the folder (``report/``
+    of a run, or ``weldcell seam --report DIR``), the page's title and subtitle, the rows of its files
+    table ``[file, what it is]``, what the cloud is called in the 3-D view, and whether the scan was
+    reconstructed from views (the job) or read as one cloud (the command)."""
+
+    out_dir: Path
+    title: str
+    subtitle: str
+    files: list[list[str]] = field(default_factory=list)
+    cloud_label: str = "denoised model"
+    md_title: str = "Scan-and-plan report"
 
 
 def _deg(a) -> float:
@@ -61,7 +79,12 @@ def _f1(x: float) -> str:
 
 def verdict(ctx, rec, path, gt, measures: list[SeamMeasures]) -> Verdict:
     """The verdict of a scan-and-plan run from what it computed and what was refused along the way."""
-    fig = ctx.figures
+    return verdict_of(ctx.figures, rec, path, gt, measures)
+
+
+def verdict_of(fig: dict, rec, path, gt, measures: list[SeamMeasures]) -> Verdict:
+    """The verdict from the run's ``figures`` (refusals, notes, execution), the reconstruction ``rec``
+    (None for a single cloud), the path, the ground truth (simulation) and the seam measures."""
     v = Verdict("ok", "")
     m = path.metrics
     for s in measures:
@@ -80,7 +103,7 @@ def verdict(ctx, rec, path, gt, measures: list[SeamMeasures]) -> Verdict:
                 f"seam {s.id} strays up to {1e3 * s.error['translation_max_m']:.1f} mm from the true seam "
                 f"(flagged above {1e3 * SEAM_ERROR_ATTENTION:g} mm): check its cross-sections"
             )
-    acc = list(getattr(rec, "accepted", []))
+    acc = list(getattr(rec, "accepted", None) or [])
     for i, ok in enumerate(acc):
         if not ok:
             v.refused.append(
@@ -233,57 +256,38 @@ FITNESS_TEXT = (
 )
 
 
-def plot_cloud_and_paths(ax, cloud_pts, path, gt, view, rng, max_points=30000, frame_every=6):
-    """One orthographic view ("top", "front" or "side") of a cloud with the seams found, the true seams
-    (dashed, drawn first so the found ones lie on top) and the torch frames (x orange, z blue); used by
-    ``weldcell seam --report``."""
-    idx = rng.choice(len(cloud_pts), size=min(max_points, len(cloud_pts)), replace=False)
-    P = cloud_pts[idx] * 1000
-    a, b = {"top": (0, 1), "front": (0, 2), "side": (1, 2)}[view]
-    ax.scatter(P[:, a], P[:, b], s=0.2, c=P[:, 2], cmap="Greys", alpha=0.5, rasterized=True)
-    for i, (_, s) in enumerate(gt or []):
-        g = s.points * 1000
-        ax.plot(g[:, a], g[:, b], "--", color="tab:green", lw=1.2, label="ground truth" if i == 0 else None)
-    for i, seam in enumerate(path.seams):
-        q = seam.points * 1000
-        ax.plot(q[:, a], q[:, b], "-", color="tab:red", lw=1.6, label="seam found" if i == 0 else None)
-        T = seam.poses[::frame_every]
-        o = T[:, :3, 3] * 1000
-        for axis, color in ((0, "tab:orange"), (2, "tab:blue")):
-            d = T[:, :3, axis] * 8
-            ax.quiver(
-                o[:, a],
-                o[:, b],
-                d[:, a],
-                d[:, b],
-                color=color,
-                angles="xy",
-                scale_units="xy",
-                scale=1,
-                width=0.003,
-            )
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("xyz"[a] + " [mm]")
-    ax.set_ylabel("xyz"[b] + " [mm]")
-    ax.set_title(f"{view} view (torch x orange, z blue)")
-
-
 def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] | None = None) -> None:
     """summary.txt (with ``notes`` at its end), report/report.html, report/report.md and its pictures:
     every file written whole, atomically and durably (never appended in place)."""
+    measures = seam_measures(path, gt)
+    v = verdict(ctx, rec, path, gt, measures)
+    summary = _summary(ctx, scans, rec, clean, path, gt, notes)
+    ctx.write_text("summary.txt", summary)
+    sim = bool(gt)
+    page = ReportPage(
+        ctx.path("report/report.html").parent,
+        f"Scan-and-plan: {ctx.profile.name}",
+        f"run folder {ctx.run_dir.name}" + (" · simulated cell (ground truth known)" if sim else ""),
+        files=[
+            ["weld_path.json", "seams and torch poses (weldcell/weld-path@1)"],
+            ["model.ply", "merged model"],
+            ["model_denoised.ply", "the model after denoising"],
+        ]
+        + [[p, "robot program"] for p in ctx.figures.get("programs", [])],
+    )
+    write_pages(page, v, summary, rec, np.asarray(clean.points, dtype=float), path, gt, measures)
+
+
+def write_pages(page: ReportPage, v: Verdict, summary: str, rec, pts, path, gt, measures) -> list[Path]:
+    """``report.html``, ``report.md`` and the PNGs of a seam report into ``page.out_dir`` (``rec`` None:
+    no reconstruction section). Returns the files written."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     sim = bool(gt)
-    measures = seam_measures(path, gt)
-    v = verdict(ctx, rec, path, gt, measures)
-    summary = _summary(ctx, scans, rec, clean, path, gt, notes)
-    ctx.write_text("summary.txt", summary)
-    pts = np.asarray(clean.points, dtype=float)
     spacing = point_spacing(pts)
-
     pictures: list[tuple[str, str, Any]] = []  # (file, caption, figure)
     pictures.append(
         (
@@ -302,7 +306,7 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] 
             (
                 f"seam_{seam.id}.png",
                 f"Seam {seam.id}: does the torch point into the joint at the right standoff and angle? Cuts "
-                "across the joint near its start, middle and end (the model's points "
+                f"across the joint near its start, middle and end (the {page.cloud_label}'s points "
                 f"{3 * 1e3 * spacing:.1f} mm thick), red x the seam found"
                 + (", green + the true seam." if sim else "."),
                 cross_section_figure(pts, seam, s, gt_by_seam.get(seam.id), spacing),
@@ -316,7 +320,7 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] 
                 seam_error_figure(measures, SEAM_ERROR_ATTENTION),
             )
         )
-    if len(rec.fitness):
+    if _has_views(rec):
         pictures.append(
             (
                 "fitness.png",
@@ -324,18 +328,26 @@ def write_report(ctx, scans, rec, clean, extraction, path, gt, notes: list[str] 
                 fitness_figure(rec),
             )
         )
-    rendered = []  # each picture drawn once: the same PNG is the file and the HTML's data URI
+    page.out_dir.mkdir(parents=True, exist_ok=True)
+    rendered, written = [], []  # each picture drawn once: the same PNG is the file and the HTML's data URI
     for name, caption, fig in pictures:
         png = figure_png(fig, dpi=110)
         plt.close(fig)
-        write_bytes(ctx.path(f"report/{name}"), png)
+        written.append(write_bytes(page.out_dir / name, png))
         rendered.append((name, caption, png))
-    _write_html(ctx, v, summary, rec, clean, path, gt, measures, rendered)
-    _write_md(ctx, v, summary, rec, measures, sim, rendered)
+    written.insert(0, _write_html(page, v, summary, rec, pts, path, gt, measures, rendered))
+    written.insert(1, _write_md(page, v, summary, rec, measures, sim, rendered))
+    return written
 
 
-def _write_md(ctx, v: Verdict, summary: str, rec, measures, sim: bool, pictures) -> None:
-    md = ["# Scan-and-plan report", "", f"**{v.status.upper()}: {v.headline}**", ""]
+def _has_views(rec) -> bool:
+    return rec is not None and len(rec.fitness) > 0
+
+
+def _write_md(page: ReportPage, v: Verdict, summary: str, rec, measures, sim: bool, pictures) -> Path:
+    from weldcell.sdk.secrets import redact
+
+    md = [f"# {page.md_title}", "", f"**{v.status.upper()}: {v.headline}**", ""]
     for title, items in (
         ("Found", v.found),
         ("Refused, and why", v.refused),
@@ -346,24 +358,21 @@ def _write_md(ctx, v: Verdict, summary: str, rec, measures, sim: bool, pictures)
     md += ["Open `report.html` (next to this file) in a browser for the interactive 3-D view.", ""]
     md += ["## Seams", ""] + _md_table(*_seam_table(measures, sim)[:2]) + [""]
     md += ["## Summary", "", "```", summary.rstrip(), "```", ""]
-    if len(rec.fitness):
+    if _has_views(rec):
         md += (
             ["## ICP per view", "", FITNESS_TEXT, ""] + _md_table(FITNESS_COLUMNS, _fitness_rows(rec)) + [""]
         )
     md += ["## Pictures", ""]
     for name, caption, _ in pictures:
         md += [f"![{caption}]({name})", "", f"*{caption}*", ""]
-    ctx.write_text("report/report.md", "\n".join(md))
+    return write_text(page.out_dir / "report.md", redact("\n".join(md)))
 
 
-def _write_html(ctx, v: Verdict, summary, rec, clean, path, gt, measures, pictures) -> None:
+def _write_html(page: ReportPage, v: Verdict, summary, rec, pts, path, gt, measures, pictures) -> Path:
     from weldcell.sdk.html_report import HtmlReport, Scene3D
 
     sim = bool(gt)
-    rep = HtmlReport(
-        f"Scan-and-plan: {ctx.profile.name}",
-        f"run folder {ctx.run_dir.name}" + (" · simulated cell (ground truth known)" if sim else ""),
-    )
+    rep = HtmlReport(page.title, page.subtitle)
     rep.set_verdict(v.status, v.headline, found=v.found, refused=v.refused, attention=v.attention)
     cols, rows, marks = _seam_table(measures, sim)
     sec = rep.section(
@@ -382,8 +391,8 @@ def _write_html(ctx, v: Verdict, summary, rec, clean, path, gt, measures, pictur
         ),
         row_status=marks,
     )
-    scene = Scene3D("model, seams and torch frames [mm]")
-    scene.cloud(clean.points, "denoised model", max_points=30000)
+    scene = Scene3D(f"{page.cloud_label}, seams and torch frames [mm]")
+    scene.cloud(pts, page.cloud_label, max_points=30000)
     for _, s in gt or []:
         scene.line(s.points, f"true seam {s.id}", color="#2ca02c", width=3, dash="dash")
     for k, seam in enumerate(path.seams):
@@ -409,7 +418,7 @@ def _write_html(ctx, v: Verdict, summary, rec, clean, path, gt, measures, pictur
         for name, caption, fig in pictures:
             if name in ("seams.png", "seam_error.png"):
                 where.figure(fig, caption)
-    if len(rec.fitness):
+    if _has_views(rec):
         icp = rep.section("Reconstruction: ICP per view", FITNESS_TEXT)
         icp.table(
             FITNESS_COLUMNS,
@@ -420,14 +429,7 @@ def _write_html(ctx, v: Verdict, summary, rec, clean, path, gt, measures, pictur
             if name == "fitness.png":
                 icp.figure(fig, caption)
     files = rep.section("Files and summary")
-    files.table(
-        ["file", "what it is"],
-        [
-            ["weld_path.json", "seams and torch poses (weldcell/weld-path@1)"],
-            ["model.ply", "merged model"],
-            ["model_denoised.ply", "the model after denoising"],
-        ]
-        + [[p, "robot program"] for p in ctx.figures.get("programs", [])],
-    )
+    if page.files:
+        files.table(["file", "what it is"], page.files)
     files.preformatted(summary)
-    rep.write(ctx.path("report/report.html"))
+    return rep.write(page.out_dir / "report.html")

@@ -23,6 +23,7 @@ class Read:
     speed: float | None  # m/s for linear moves
     blend: float  # m
     events: list[str] = field(default_factory=list)  # arc_on / arc_off after this motion
+    config: object = None  # RAPID (cf1, cf4, cf6, cfx); KRL (S, T) or None; TP the CONFIG string
 
 
 def _T(xyz_m, R) -> np.ndarray:
@@ -202,8 +203,8 @@ def read_rapid(text: str) -> tuple[list[Read], dict[str, tuple[str, object]]]:
                 run(op, depth + 1)
                 continue
             if op in ("ConfL", "ConfJ"):
-                assert sw == ["Off"] and not args
-                switches.append(f"{op}\\Off")
+                assert sw in (["Off"], ["On"]) and not args
+                switches.append(f"{op}\\{sw[0]}")
                 continue
             assert op in RAPID_SIGNATURES, f"unknown instruction {op}"
             names = [str(a.children[0]) for a in args]
@@ -213,8 +214,11 @@ def read_rapid(text: str) -> tuple[list[Read], dict[str, tuple[str, object]]]:
                 assert typ(n) == w, f"{op}: {n} is a {typ(n)}, expected {w}"
             for opt in args[-1].children[1:]:
                 assert str(opt.children[0]) == "WObj" and typ(str(opt.children[1])) == "wobjdata"
-            assert "ConfL\\Off" in switches, "linear moves before ConfL\\Off"
-            (xyz, q, _cf, _ext) = decls[names[0]][1]
+            (xyz, q, cf, _ext) = decls[names[0]][1]
+            monitored = switches[-1:] == ["ConfL\\On"] and "ConfJ\\On" in switches
+            if not monitored:  # without configuration monitoring the confdata means nothing
+                assert "ConfL\\Off" in switches, "linear moves before ConfL\\Off"
+            assert all(float(v).is_integer() for v in cf) and 0 <= cf[3] <= 7, f"bad confdata {cf}"
             assert abs(np.linalg.norm(q) - 1.0) < 1e-5, f"{names[0]}: quaternion not normalised"
             R = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
             zone = names[-2]
@@ -226,7 +230,8 @@ def read_rapid(text: str) -> tuple[list[Read], dict[str, tuple[str, object]]]:
             else:
                 speed = decls[names[1]][1][0] / 1000.0
             kind = "joint" if op == "MoveJ" else "linear"
-            moves.append(Read(kind, _T(np.array(xyz) / 1000.0, R), speed, blend))
+            config = tuple(int(v) for v in cf) if monitored else None
+            moves.append(Read(kind, _T(np.array(xyz) / 1000.0, R), speed, blend, config=config))
             if op == "ArcLStart":
                 moves[-1].events.append("arc_on")
             elif op == "ArcLEnd":
@@ -285,19 +290,28 @@ KRL_DAT = Lark(
 
 
 def _krl_frame(t: Tree) -> np.ndarray:
+    return _krl_pos(t)[0]
+
+
+def _krl_pos(t: Tree) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """The pose of a KRL frame/E6POS aggregate and its (S, T) when given."""
     comps = {str(c.children[0]): float(c.children[1]) for c in t.find_data("comp")}
-    assert set(comps) == set("XYZABC"), f"frame components {set(comps)}"
+    assert set(comps) in (set("XYZABC"), set("XYZABCST")), f"frame components {set(comps)}"
     R = Rotation.from_euler("ZYX", [comps["A"], comps["B"], comps["C"]], degrees=True).as_matrix()
-    return _T(np.array([comps["X"], comps["Y"], comps["Z"]]) / 1000.0, R)
+    st = None
+    if "S" in comps:
+        st = (int(comps["S"]), int(comps["T"]))
+        assert 0 <= st[0] <= 7 and 0 <= st[1] <= 63 and all(float(comps[k]).is_integer() for k in "ST")
+    return _T(np.array([comps["X"], comps["Y"], comps["Z"]]) / 1000.0, R), st
 
 
 def read_krl(src: str, dat: str | None = None) -> tuple[list[Read], np.ndarray | None]:
     """The motions of a KRL .src (names resolved in ``dat`` when given) and the $TOOL frame."""
     tree = KRL.parse(src)
-    names: dict[str, np.ndarray] = {}
+    names: dict[str, tuple] = {}
     if dat is not None:
         for d in KRL_DAT.parse(dat).find_data("decl"):
-            names[str(d.children[0])] = _krl_frame(d.children[1])
+            names[str(d.children[0])] = _krl_pos(d.children[1])
     routines = {str(r.children[0]): r.children[1:] for r in tree.children if isinstance(r, Tree)}
     first = next(r for r in tree.children if isinstance(r, Tree))
     state = {"vel": None, "cdis": 0.0, "tool": None, "bco": False}
@@ -308,8 +322,8 @@ def read_krl(src: str, dat: str | None = None) -> tuple[list[Read], np.ndarray |
             assert str(t.children[0]) in names, f"{t.children[0]} is not declared in the .dat"
             return names[str(t.children[0])]
         if t.data == "sysref":
-            return None
-        return _krl_frame(t)
+            return None, None
+        return _krl_pos(t)
 
     def run(name: str, depth: int = 0) -> None:
         assert depth < 5
@@ -333,16 +347,17 @@ def read_krl(src: str, dat: str | None = None) -> tuple[list[Read], np.ndarray |
                     assert prev is not None and prev.data == "wait", "$OUT set in the advance run"
                     moves[-1].events.append("arc_on" if rhs.data == "true" else "arc_off")
             elif st.data == "ptp":
-                T = target(st.children[0])
+                T, st_bits = target(st.children[0])
                 if T is None:
                     state["bco"] = True
                 else:
                     assert state["bco"], "the first motion must be a PTP to a full position (BCO run)"
-                    moves.append(Read("joint", T, None, 0.0))
+                    moves.append(Read("joint", T, None, 0.0, config=st_bits))
             elif st.data == "lin":
                 assert state["bco"] and state["vel"] is not None, "LIN before BCO or without $VEL.CP"
                 blend = state["cdis"] if len(st.children) > 1 else 0.0
-                moves.append(Read("linear", target(st.children[0]), state["vel"], blend))
+                T, st_bits = target(st.children[0])
+                moves.append(Read("linear", T, state["vel"], blend, config=st_bits))
 
     run(str(first.children[0]))
     return moves, state["tool"]
@@ -387,11 +402,13 @@ def read_tp(text: str) -> tuple[list[Read], dict[str, int]]:
     """The motions of a FANUC .ls program and its UFRAME_NUM / UTOOL_NUM."""
     tree = TP.parse(text)
     points: dict[int, np.ndarray] = {}
+    configs: dict[int, str] = {}
     for p in tree.find_data("pos"):
         n = int(p.children[0])
         c = {str(k.children[0]): float(k.children[1]) for k in p.find_data("coord")}
         R = Rotation.from_euler("xyz", [c["W"], c["P"], c["R"]], degrees=True).as_matrix()
         points[n] = _T(np.array([c["X"], c["Y"], c["Z"]]) / 1000.0, R)
+        configs[n] = next(str(t) for t in p.children if getattr(t, "type", "") == "CONFIG").strip("'")
     frames: dict[str, int] = {}
     moves: list[Read] = []
     expect = 1
@@ -405,7 +422,8 @@ def read_tp(text: str) -> tuple[list[Read], dict[str, int]]:
             term = str(ins.children[2])
             blend = 0.0 if term == "FINE" else float(term[3:])  # CNT value, not a distance
             speed = float(ins.children[1]) / 1000.0 if ins.data == "linear" else None
-            moves.append(Read("joint" if ins.data == "joint" else "linear", points[n], speed, blend))
+            kind = "joint" if ins.data == "joint" else "linear"
+            moves.append(Read(kind, points[n], speed, blend, config=configs[n]))
         elif ins.data in ("arc_on", "arc_off"):
             moves[-1].events.append(ins.data)
         elif ins.data == "do":

@@ -37,7 +37,9 @@ needs_chromium = pytest.mark.skipif(
 )
 
 
-def _report(tmp_path: Path, *, with_scene: bool = True, script: str = "", n_points: int = 5000) -> Path:
+def _report(
+    tmp_path: Path, *, with_scene=True, script: str = "", n_points: int = 5000, compress_js: bool = True
+) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -48,7 +50,7 @@ def _report(tmp_path: Path, *, with_scene: bool = True, script: str = "", n_poin
     seam = np.column_stack([np.linspace(-0.08, 0.08, 40), np.zeros(40), np.zeros(40)])
     poses = np.tile(np.eye(4), (40, 1, 1))
     poses[:, :3, 3] = seam + [0, 0, 0.015]
-    rep = HtmlReport("Test <report>", "a & b")
+    rep = HtmlReport("Test <report>", "a & b", compress_js=compress_js)
     rep.set_verdict("failed", "nothing to weld", refused=["s1: out of reach <gate>"], attention=["look"])
     sec = rep.section("Seams", "intro")
     sec.table(
@@ -83,6 +85,41 @@ def test_page_is_self_contained_escaped_and_verdict_first(tmp_path):
     assert "data:image/png;base64," in page
     assert page.count("plotly.js v") >= 1 and page.count("<script") >= 2
     assert 'class="num outlier" title="an outlier"' in page and '<tr class="bad">' in page
+
+
+def test_plotly_is_packed_whole_and_the_view_waits_for_it(tmp_path):
+    """The bundled plotly.js is gzip + base64 in a block the browser does not run: it unpacks to exactly
+    the installed plotly's bundle, and the 3-D view's plotly call is deferred until it is unpacked."""
+    import base64
+    import gzip
+
+    from plotly.offline import get_plotlyjs
+
+    page = _report(tmp_path).read_text()
+    packed = re.search(r'<script id="wc-plotly-gz" type="application/octet-stream">([^<]*)</script>', page)
+    assert gzip.decompress(base64.b64decode(packed.group(1))).decode() == get_plotlyjs()
+    assert get_plotlyjs()[:5000] not in page  # not also raw
+    assert page.count('<script type="text/x-wc-scene">') == 1 and "Plotly.newPlot" in page
+    assert "DecompressionStream('gzip')" in page
+    assert len(page) < 0.5 * len(get_plotlyjs())  # the whole page: about 2.2 MB, plotly alone is 4.8 MB
+    raw = _report(tmp_path, compress_js=False).read_text()  # the old way, for any browser
+    assert get_plotlyjs()[:5000] in raw and "wc-plotly-gz" not in raw and "text/x-wc-scene" not in raw
+    assert len(raw) > len(get_plotlyjs())
+
+
+@needs_chromium
+def test_a_browser_without_decompression_says_so_in_place_of_the_view(tmp_path):
+    """A browser older than Chrome 80 / Firefox 113 / Safari 16.4 (no DecompressionStream): the page
+    still loads, and says in the view's place why there is no 3-D view and which browsers show it."""
+    html = _report(tmp_path)
+    page = html.read_text().replace("<head>", "<head><script>delete window.DecompressionStream;</script>", 1)
+    html.write_text(page)
+    check = browser.inspect_page(html, None, timeout=8)
+    assert check.dom["scenes_drawn"] == 0 and check.outside_requests == []
+    assert any("could not be unpacked" in e for e in check.console_errors)
+    assert check.dom["tables"] == 1 and check.dom["verdict_first"]
+    (note,) = check.dom["scene_notes"]
+    assert "3-D view not shown" in note and "Firefox 113+" in note
 
 
 def test_no_plotly_bundle_without_a_scene(tmp_path):
