@@ -17,9 +17,11 @@ whole ``localize`` call, and the CPU of the paper's search itself (``timings["po
 exact polish, without the member fits and weld re-plan that follow).
 
 Accuracy of the fast path: the paper's search as it runs (seeds on eq. 3 through the template's Voronoi
-labels, 0.1 mm tolerance, then Powell on the exact eq. 3 from the winner) against a reference of the same
-seeds on the exact eq. 3 (every point against every segment) at 1 µm tolerance: the largest pose difference
-and the largest relative difference of the eq. (3) value. The load average is printed beside the times.
+labels, 0.3 mm tolerance, a seed stopped once it joins the basin of a minimum already found, then Powell on
+the exact eq. 3 -- on each point's candidate segments, provably the all-pairs value -- from the winner)
+against a reference of the same seeds on the exact eq. 3 (every point against every segment, every seed to
+its end) at 1 µm tolerance: the largest pose difference and the largest relative difference of the eq. (3)
+value. The load average is printed beside the times.
 Prints markdown; nothing is asserted.
 """
 

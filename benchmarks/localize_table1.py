@@ -1,208 +1,193 @@
-"""Paper 002, Table 1: localization accuracy and failure rate over placement trials, plus ablations and speed.
+"""Paper 002, Table 1: localization accuracy and failure rate over placement trials, via `weldcell study`.
 
 Run:  .venv/bin/python benchmarks/localize_table1.py [--trials 150] [--methods robust,paper7,paper1]
+          [--workpieces ladder,truss,spaceframe] [--plans zigzag,spiral] [--workers N] [-o OUT_DIR]
 
-Protocol (§V): for each workpiece (Fig. 12-like: ladder frame, Warren truss with mitred diagonals,
-spaceframe member; plugins/localize/workpieces.py) and inspection plan (zig-zag across each member's
-major axis, spiral along the principal axes), ``--trials`` placements with a uniform error of ±15 mm in
-X and Y and ±20° in θ; every member deviates from CAD by up to ±2 mm (a shift and a rotation about its
-centre, scaled so that its farthest point moves by uniform [0, 2] mm); the optoNCDT 1402 model: 0.288 mm
-depth noise, the 0.4 mm robot-sensor coupling (0.2 mm per axis, constant along each line), shearing
-within 0.2 mm of a drop (half the readings
-lost), 1.5 kHz at 0.2 m/s (0.13 mm spacing). Edges by the §III-D extraction, then each method on the same
-edge points:
+Every row (workpiece x plan x method) is one study of ``profiles/cell3-localize-table1-sim.toml`` (the
+``localize-and-weld`` job with ``scope = "localize"``: template, the simulated worker's placement, the job's
+own inspection plan scanned by the optoNCDT 1402 sensor model, edges, localization, errors against the truth;
+no robot motion, projector or weld), run by ``weldcell.sdk.scale.study.run_study`` -- the API of
+``weldcell study`` -- with the row's values and the placement drawn per trial. The exact command of each row
+is printed, e.g.::
 
-* ``robust``: the default pipeline (global search + robust Gauss-Newton + ambiguity + member re-plan);
-* ``paper7``: the paper's Powell from 7 seeds on eq. (3) (process pool), 2.5 mm mean-error check;
-* ``paper1``: the same from 1 seed.
+    weldcell study profiles/cell3-localize-table1-sim.toml --trials 150 --seed 0 \\
+        --vary 'job.settings.worker.placement_x=uniform(-15 mm, 15 mm)' \\
+        --vary 'job.settings.worker.placement_y=uniform(-15 mm, 15 mm)' \\
+        --vary 'job.settings.worker.placement_theta=uniform(-20 deg, 20 deg)' \\
+        --vary 'job.settings.template=choice(ladder)' --vary 'job.settings.plan.plan=choice(local)' ...
 
-Reported per workpiece/plan/method: σ of the weld points' X and Y error (each weld re-planned from the
-members it joins for ``robust``; moved by M for the paper's methods) against the true welds (a weld lies
-against the side faces of the members it joins: it follows each member's true pose across that member's
-axis), σ of θ of M against the placement, the failure rate (failed or ambiguous), the share of welds
-reported ``uncertain`` (robust: the scan did not
-measure their members well enough; not claimed), wrong answers (status ok but a claimed weld point off by
-> 2.5 mm), and the median localization time (wall, and CPU of this process). Edge extraction speed in
-readings/s. Prints markdown; nothing is asserted.
+Protocol (§V): ±15 mm in X and Y and ±20° in θ, uniform; every member off CAD by up to ±2 mm (a shift and a
+rotation about its centre, its farthest point moved by uniform [0, 2] mm); the sensor model: 0.288 mm depth
+noise, the 0.4 mm robot-sensor coupling (0.2 mm per axis, constant along each line), shearing within 0.2 mm
+of a drop (half the readings lost), 1.5 kHz at 0.2 m/s (0.13 mm spacing). Plans (the job's, §III-C):
+``zigzag`` = local, legs 20 mm apart, 40 mm beyond each member; ``spiral`` = global, rings 12 mm apart along
+the principal axes, 40 mm beyond the part, with the serpentine core (default); ``spiral-paper`` = the paper's
+spiral alone (``spiral_core = "none"``). Methods: ``robust`` (default pipeline: global search + robust
+Gauss-Newton + ambiguity + members + weld re-plan), ``paper7`` / ``paper1`` (Powell from 7 / 1 seeds on eq. 3,
+2.5 mm mean-error check; each weld moved by M alone, as in the paper).
+
+Reported per row: σ of the pose error X, Y, θ against the placement (study statistics of
+``localization.error_vs_truth``); σ of the weld points' X and Y error against the true welds, pooled over
+the ok trials (from each trial's mean and RMS: ``welds_vs_truth`` for robust, ``welds_rigid_vs_truth`` for
+the paper's methods); failed % (the study's failure rate: failed, ambiguous, refused plan); uncertain welds %
+(robust: welds its members did not place, not claimed); wrong answers (ok but a claimed weld > 2.5 mm off);
+the median CPU ms of the localization in the trial. Prints markdown; nothing is asserted.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
+import sys
+import tempfile
 import time
+from pathlib import Path
 
-import numpy as np
-from weldcell.plugins.localize.edges import extract_edges
-from weldcell.plugins.localize.fit import LocalizeSettings, localize
-from weldcell.plugins.localize.pose import rot2, transform_template
-from weldcell.plugins.localize.refine import fuse_across, member_axis
-from weldcell.plugins.localize.synth import (
-    SensorModel,
-    apply_variations,
-    member_variations,
-    scan_lines,
-    spiral_plan,
-    zigzag_plan,
-)
-from weldcell.plugins.localize.workpieces import WORKPIECES, make_workpiece
-
-METHODS = {
-    "robust": LocalizeSettings(),
-    "paper7": LocalizeSettings(method="paper", seeds=7),
-    "paper1": LocalizeSettings(method="paper", seeds=1, parallel="never"),
+PROFILE = Path(__file__).resolve().parents[1] / "profiles" / "cell3-localize-table1-sim.toml"
+PLACEMENT = [
+    "job.settings.worker.placement_x=uniform(-15 mm, 15 mm)",
+    "job.settings.worker.placement_y=uniform(-15 mm, 15 mm)",
+    "job.settings.worker.placement_theta=uniform(-20 deg, 20 deg)",
+]
+PLANS = {
+    "zigzag": ["job.settings.plan.plan=choice(local)", "job.settings.plan.spacing=choice(20 mm)"],
+    "spiral": ["job.settings.plan.plan=choice(global)", "job.settings.plan.spacing=choice(12 mm)"],
+    "spiral-paper": [
+        "job.settings.plan.plan=choice(global)",
+        "job.settings.plan.spacing=choice(12 mm)",
+        "job.settings.plan.spiral_core=choice(none)",
+    ],
 }
-WRONG = 2.5e-3
+METHODS = {
+    "robust": ["stages.localize.settings.method=choice(robust)"],
+    "paper7": ["stages.localize.settings.method=choice(paper)", "stages.localize.settings.seeds=choice(7)"],
+    "paper1": ["stages.localize.settings.method=choice(paper)", "stages.localize.settings.seeds=choice(1)"],
+}
 
 
-def true_welds(tpl, pose, variations):
-    """Where each weld really is: it lies against the side faces of the members it joins, so it follows
-    each member (placement ∘ its CAD deviation) across that member's axis (refine.fuse_across)."""
-    from shapely import distance, points
-    from shapely.geometry import Polygon
-
-    c = tpl.centroid
-    P = np.eye(3)
-    P[:2, :2] = rot2(pose[2])
-    P[:2, 2] = c + np.asarray(pose[:2]) - rot2(pose[2]) @ c
-    polys = [Polygon(m.outline) for m in tpl.members]
-    out = []
-    for w in tpl.welds:
-        pts = points(w.points[:, :2])
-        joined = [k for k, poly in enumerate(polys) if distance(poly, pts).min() <= 3e-3]
-        h = np.column_stack([w.points[:, :2], np.ones(len(w.points))])
-        placed = h @ P[:2].T
-        disp, normals = [], []
-        for k in joined:
-            T = P @ variations[k]
-            u = T[:2, :2] @ member_axis(tpl.members[k].outline)
-            disp.append(h @ T[:2].T - placed)
-            normals.append(np.array([-u[1], u[0]]))
-        out.append(placed + fuse_across(disp, normals))
-    return out
+def row_vary(workpiece: str, plan: str, method: str) -> list[str]:
+    return [*PLACEMENT, f"job.settings.template=choice({workpiece})", *PLANS[plan], *METHODS[method]]
 
 
-def run_trial(tpl, plan_name, lines, rng, methods, sensor, amount):
-    pose = np.array(
-        [rng.uniform(-0.015, 0.015), rng.uniform(-0.015, 0.015), math.radians(rng.uniform(-20, 20))]
-    )
-    var = member_variations(tpl, rng, amount)
-    placed = transform_template(apply_variations(tpl, var), pose, tpl.centroid)
-    scan = scan_lines(placed, lines, rng, sensor)
-    t0 = time.perf_counter()
-    edges = extract_edges(scan, tpl)
-    t_edges = time.perf_counter() - t0
-    truth = true_welds(tpl, pose, var)
-    rows = {}
-    for name in methods:
-        t0, c0 = time.perf_counter(), time.process_time()
-        loc = localize(tpl, edges, METHODS[name])
-        dt, cpu = time.perf_counter() - t0, time.process_time() - c0
-        if name == "robust":
-            found = [np.asarray(w["points"])[:, :2] for w in loc.welds]
-        else:
-            M = loc.M
-            found = [w.points[:, :2] @ M[:2, :2].T + M[:2, 3] for w in tpl.welds]
-        err = np.concatenate([f - t for f, t in zip(found, truth, strict=True)])
-        claimed = (
-            [w.get("status", "ok") == "ok" for w in loc.welds] if name == "robust" else [True] * len(truth)
-        )
-        worst = max(
-            (
-                float(np.linalg.norm(f - t, axis=1).max())
-                for f, t, c in zip(found, truth, claimed, strict=True)
-                if c
-            ),
-            default=0.0,
-        )
-        rows[name] = {
-            "status": loc.status,
-            "err_xy": err,
-            "dtheta": float(loc.pose[2] - pose[2]),
-            "uncertain": 1.0 - float(np.mean(claimed)),
-            "wrong": loc.status == "ok" and worst > WRONG,
-            "time": dt,
-            "cpu": cpu,
-            "parallel": loc.parallel,
-        }
-    return rows, len(scan) / t_edges, len(edges)
+def command(trials: int, seed: int, vary: list[str], out: Path) -> str:
+    v = " ".join(f"--vary '{x}'" for x in vary)
+    return f"weldcell study {PROFILE.relative_to(Path.cwd())} --trials {trials} --seed {seed} {v} -o {out}"
 
 
-def summarize(results):
-    ok = [r for r in results if r["status"] == "ok"]
-    n = len(results)
-    fail = sum(r["status"] != "ok" for r in results)
-    wrong = sum(r["wrong"] for r in results)
-    if ok:
-        err = np.concatenate([r["err_xy"] for r in ok])
-        sx, sy = np.std(err[:, 0]) * 1e3, np.std(err[:, 1]) * 1e3
-        st = math.degrees(float(np.std([r["dtheta"] for r in ok])))
-    else:
-        sx = sy = st = float("nan")
-    t = statistics.median(r["time"] for r in results) * 1e3
-    cpu = statistics.median(r["cpu"] for r in results) * 1e3
-    unc = 100.0 * float(np.mean([r["uncertain"] for r in results]))
-    return sx, sy, st, 100.0 * fail / n, wrong, t, cpu, unc
+def pooled(trials: list[dict], key: str) -> tuple[float, float]:
+    """σ of the weld points' X and Y error over all ok trials, from each trial's count, mean and RMS."""
+    n = sx = sy = qx = qy = 0.0
+    for t in trials:
+        f = t["figures"]
+        k = f.get(f"{key}.points", 0.0)
+        n += k
+        sx += k * f[f"{key}.mean_x_mm"]
+        sy += k * f[f"{key}.mean_y_mm"]
+        qx += k * f[f"{key}.rms_x_mm"] ** 2
+        qy += k * f[f"{key}.rms_y_mm"] ** 2
+    if not n:
+        return math.nan, math.nan
+    return math.sqrt(max(qx / n - (sx / n) ** 2, 0.0)), math.sqrt(max(qy / n - (sy / n) ** 2, 0.0))
+
+
+def summarize(study: dict, method: str) -> dict:
+    trials = list(study["trials"].values())
+    ok = [t for t in trials if t["status"] == "ok"]
+    st = study["statistics"]
+    key = "welds_vs_truth" if method == "robust" else "welds_rigid_vs_truth"
+
+    def sd(k):
+        return st[k]["std"] if k in st else math.nan
+
+    wx, wy = pooled(ok, key)
+    fig = [t["figures"] for t in ok]
+    return {
+        "n": len(trials),
+        "ok": ok,
+        "pose": (
+            sd("localization.error_vs_truth.x_mm"),
+            sd("localization.error_vs_truth.y_mm"),
+            sd("localization.error_vs_truth.theta_deg"),
+        ),
+        "weld": (wx, wy),
+        "failed": 100.0 * study["failure_rate"],
+        "uncertain": 100.0 * statistics.fmean(f.get(f"{key}.uncertain_fraction", 0.0) for f in fig)
+        if fig
+        else 0,
+        "wrong": int(sum(f.get(f"{key}.wrong", 0.0) for f in fig)),
+        "points": statistics.median(f["edge_points"] for f in fig) if fig else math.nan,
+        "cpu": statistics.median(f["timings_ms.localize"] for f in fig) if fig else math.nan,
+        "lost": study["counts"]["lost"],
+        "errors": sorted(
+            {(t.get("error") or {}).get("line", "")[:120] for t in trials if t["status"] != "ok"}
+        ),
+    }
 
 
 def main() -> None:
+    from weldcell.sdk.scale.cluster import ClusterOptions
+    from weldcell.sdk.scale.study import run_study
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=150)
-    ap.add_argument("--workpieces", default=",".join(WORKPIECES))
+    ap.add_argument("--workpieces", default="ladder,truss,spaceframe")
     ap.add_argument("--plans", default="zigzag,spiral")
-    ap.add_argument("--methods", default="robust,paper7,paper1")
-    ap.add_argument("--variation", type=float, default=2.0, help="member deviation from CAD, mm")
+    ap.add_argument("--methods", default="robust")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=None, help="local worker processes (0: in this process)")
+    ap.add_argument("-o", "--out", type=Path, default=None, help="keep the studies here (resumable)")
     args = ap.parse_args()
-    methods = args.methods.split(",")
-    sensor = SensorModel()
+    out = args.out or Path(tempfile.mkdtemp(prefix="localize-table1-"))
+    opts = ClusterOptions(workers=args.workers)
     print(
-        f"trials {args.trials}, member variation ±{args.variation} mm, noise {sensor.noise * 1e3} mm, "
-        f"coupling {sensor.coupling * 1e3} mm/axis, {sensor.rate:.0f} Hz at {sensor.speed} m/s\n"
+        f"{args.trials} trials per row, seed {args.seed}, studies in {out}; load {os.getloadavg()[0]:.1f}\n"
     )
-    print(
-        "| workpiece | plan | method | edge pts | σX weld (mm) | σY weld (mm) | σθ (deg) | failed % "
-        "| uncertain welds % | wrong ok | median ms (cpu ms) |"
+    rows, cmds = [], []
+    head = (
+        "| workpiece | plan | method | edge pts | σX pose (mm) | σY pose (mm) | σθ (deg) | σX weld (mm) "
+        "| σY weld (mm) | failed % | uncertain welds % | wrong ok | median localize cpu ms |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    speeds = []
-    overall = {m: [] for m in methods}
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
     for wp in args.workpieces.split(","):
-        tpl = make_workpiece(wp)
         for plan in args.plans.split(","):
-            lines = zigzag_plan(tpl, 0.02, 0.2) if plan == "zigzag" else spiral_plan(tpl, pitch=0.012)
-            rng = np.random.default_rng(args.seed)
-            per = {m: [] for m in methods}
-            npts = []
-            for _ in range(args.trials):
-                rows, speed, n = run_trial(tpl, plan, lines, rng, methods, sensor, args.variation * 1e-3)
-                speeds.append(speed)
-                npts.append(n)
-                for m in methods:
-                    per[m].append(rows[m])
-                    overall[m].append(rows[m])
-            for m in methods:
-                sx, sy, st, fail, wrong, t, cpu, unc = summarize(per[m])
+            for m in args.methods.split(","):
+                vary = row_vary(wp, plan, m)
+                dest = out / f"{wp}-{plan}-{m}"
+                cmds.append(command(args.trials, args.seed, vary, dest))
+                t0 = time.perf_counter()
+                study = run_study(PROFILE, args.trials, vary, dest, opts, seed=args.seed)
+                r = summarize(study, m)
+                r.update(wp=wp, plan=plan, method=m, wall=time.perf_counter() - t0)
+                rows.append(r)
+                px, py, pt = r["pose"]
                 print(
-                    f"| {wp} | {plan} | {m} | {statistics.median(npts):.0f} | {sx:.3f} | {sy:.3f} | {st:.3f} "
-                    f"| {fail:.1f} | {unc:.1f} | {wrong} | {t:.0f} ({cpu:.0f}) |",
+                    f"| {wp} | {plan} | {m} | {r['points']:.0f} | {px:.3f} | {py:.3f} | {pt:.3f} | "
+                    f"{r['weld'][0]:.3f} | {r['weld'][1]:.3f} | {r['failed']:.1f} | {r['uncertain']:.1f} | "
+                    f"{r['wrong']} | {r['cpu']:.0f} |",
                     flush=True,
                 )
-    print(
-        "\n| method | σX weld (mm) | σY weld (mm) | σθ (deg) | failed % | uncertain welds % | wrong ok "
-        "| median ms (cpu ms) |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
-    print("| paper (Table 1) | 0.31 | 0.43 | 0.36 | < 13 | - | ? | (8 cores) |")
-    for m in methods:
-        sx, sy, st, fail, wrong, t, cpu, unc = summarize(overall[m])
-        row = f"| {m} | {sx:.3f} | {sy:.3f} | {st:.3f} | {fail:.1f} | {unc:.1f} | {wrong}"
-        print(f"{row} | {t:.0f} ({cpu:.0f}) |")
-    print(f"\nedge extraction: median {statistics.median(speeds) / 1e6:.1f} M readings/s")
-    par = {r["parallel"].split(":")[0] for r in overall.get("paper7", [])}
-    if par:
-        print(f"paper7 seeds ran: {', '.join(sorted(par))}")
+    print("\n| method | plans | σX weld (mm) | σY weld (mm) | σθ (deg) | failed % | wrong ok |")
+    print("|---|---|---|---|---|---|---|")
+    print("| paper (Table 1, real cell) | both | 0.31 | 0.43 | 0.36 | < 13 | ? |")
+    for m in args.methods.split(","):
+        sel = [r for r in rows if r["method"] == m]
+        rms = [math.sqrt(statistics.fmean(r[k][i] ** 2 for r in sel)) for k, i in (("weld", 0), ("weld", 1))]
+        th = math.sqrt(statistics.fmean(r["pose"][2] ** 2 for r in sel))
+        fail = statistics.fmean(r["failed"] for r in sel)
+        print(
+            f"| {m} | all rows (rms of σ) | {rms[0]:.3f} | {rms[1]:.3f} | {th:.3f} | {fail:.1f} | "
+            f"{sum(r['wrong'] for r in sel)} |"
+        )
+    for r in rows:
+        if r["errors"] or r["lost"]:
+            print(f"\n{r['wp']} {r['plan']} {r['method']}: {r['lost']} lost; failures: {r['errors']}")
+    print(f"\nload average at the end {os.getloadavg()[0]:.1f}; the rows as commands:")
+    for c in cmds:
+        print("   ", c)
+    sys.stdout.flush()
 
 
 if __name__ == "__main__":

@@ -211,6 +211,7 @@ def localize(template: Template, edges, settings: LocalizeSettings | None = None
         seeds = paper_seeds(outline, center, xy, s.seeds, s.seed_window_xy, s.seed_window_theta, rng)
         results = runner.run(seeds_to_tasks(xy, segs, seeds, "linear", 1.0, radius, grid))
         best = polish(xy, segs, min(results, key=lambda r: r.cost).pose, radius)  # exact eq. (3)
+        best.pose[2] = wrap(best.pose[2])  # Powell may have turned by 2 pi: the same pose
         timings["powell"] = time.perf_counter() - t1
         timings["powell_cpu"] = time.process_time() - c1  # this process only (not the pool's workers)
         ref = _at(best.pose, xy, segs, center, s)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from pydantic import Field
@@ -25,8 +26,9 @@ from weldcell.plugins.localize.guidance import (
     reachable_envelope,
 )
 from weldcell.plugins.localize.plans import PlanSettings, check_constraints, make_plan, plan_duration
-from weldcell.plugins.localize.pose import rot2
+from weldcell.plugins.localize.pose import rot2, wrap
 from weldcell.plugins.localize.projector_calibration import move_to
+from weldcell.plugins.localize.sim_trial import SimScanSettings
 from weldcell.plugins.localize.template import Template, load_template
 from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
 from weldcell.sdk.geometry import invert
@@ -45,10 +47,31 @@ class SimWorkerSettings(Settings):
     placement: tuple[Length, Length, Angle] | None = Field(
         None, description="a fixed placement error (dx, dy, dtheta) instead of a random one (tests)"
     )
+    placement_x: Length | None = Field(
+        None,
+        description="scope 'localize': a fixed placement error in x instead of a random one (studies) [m]",
+    )
+    placement_y: Length | None = Field(
+        None,
+        description="scope 'localize': a fixed placement error in y instead of a random one (studies) [m]",
+    )
+    placement_theta: Angle | None = Field(
+        None, description="scope 'localize': a fixed placement error in theta instead of a random one [rad]"
+    )
 
 
 class LocalizeAndWeldSettings(Settings):
     """The job's settings (docs/jobs/localize-and-weld.md)."""
+
+    scope: Literal["full", "localize"] = Field(
+        "full",
+        description="full: the whole job; localize (simulated cell only): template, the worker's placement, "
+        "the plan scanned by the sensor model, edges and localization against the truth, without robot "
+        "motion, projector or weld (Monte-Carlo studies: the Table 1 protocol, sim_trial.py)",
+    )
+    sim_scan: SimScanSettings = Field(
+        default_factory=SimScanSettings, description="scope 'localize': the laser sensor model"
+    )
 
     template: str = Field(
         "ladder",
@@ -430,6 +453,10 @@ def run(ctx) -> dict:
     from weldcell.plugins.localize.scan_io import write_laser_scan
 
     s: LocalizeAndWeldSettings = ctx.settings
+    if s.scope == "localize":
+        from weldcell.plugins.localize import sim_trial
+
+        return sim_trial.run(ctx)
     robot = ctx.device("robot")
     T_fs = sensor_mount(ctx)
     with ctx.step("template"):
@@ -497,7 +524,7 @@ def run(ctx) -> dict:
         ctx.figures["localization"]["error_vs_truth"] = {
             "x_mm": (loc.pose[0] - truth.pose[0]) * 1e3,
             "y_mm": (loc.pose[1] - truth.pose[1]) * 1e3,
-            "theta_deg": float(np.degrees(loc.pose[2] - truth.pose[2])),
+            "theta_deg": float(np.degrees(wrap(loc.pose[2] - truth.pose[2]))),
         }
     path = None
     if loc.ok:

@@ -59,6 +59,15 @@ class PlanSettings(Settings):
         description="turn the global spiral by this from the principal axes [rad]: 0 is the paper's; members "
         "parallel to an axis are crossed only near the spiral's ends, 45 deg crosses them on every ring",
     )
+    spiral_core: Literal["none", "serpentine"] = Field(
+        "serpentine",
+        description="global plan: 'none' is the paper's spiral alone (it crosses members along the major "
+        "axis only near its ends); 'serpentine' adds legs across the minor axis over the whole workpiece "
+        "after the spiral, so long members are crossed along their whole length",
+    )
+    core_spacing: Length | None = Field(
+        None, gt=0, description="distance between the serpentine's legs [m]; default: 2 x spacing"
+    )
     align_baseline: bool = Field(
         True,
         description="local plan: turn the sensor so its triangulation baseline runs along each member (no "
@@ -224,10 +233,21 @@ def principal_axes(template: Template) -> tuple[np.ndarray, np.ndarray]:
 
 
 def spiral_corners(
-    template: Template, span: float, spacing: float, angle: float = 0.0
+    template: Template,
+    span: float,
+    spacing: float,
+    angle: float = 0.0,
+    core: str = "none",
+    core_spacing: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Corners (n, 2) of a rectangular spiral inwards along the principal axes (turned by ``angle``), and
-    the axes (2, 2)."""
+    the axes (2, 2).
+
+    The paper's spiral (``core="none"``) closes when its short side does: members along the major axis
+    are crossed only by the rings' short legs near the workpiece's ends. ``core="serpentine"`` continues
+    from the spiral's centre with legs across the minor axis (from ``span`` outside the workpiece on one
+    side to ``span`` outside on the other), ``core_spacing`` apart over the workpiece's length, so those
+    members are crossed along their whole length as well."""
     c, A = principal_axes(template)
     if angle:
         A = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]) @ A
@@ -235,10 +255,23 @@ def spiral_corners(
     uv = (pts - c) @ A
     lo, hi = uv.min(axis=0) - span, uv.max(axis=0) + span
     x0, y0, x1, y1 = lo[0], lo[1], hi[0], hi[1]
+    # with the core, the rings shrink along the major axis in proportion to the extents (they close on
+    # both axes together), so their long legs keep crossing the members near the ends on every ring
+    du = spacing * (hi[1] - lo[1]) / (hi[0] - lo[0]) if core == "serpentine" else spacing
     corners = [[x0, y0]]
     while x1 - x0 > spacing and y1 - y0 > spacing:  # one ring: along u, v, back u, back v, then inset
         corners += [[x1, y0], [x1, y1], [x0, y1], [x0, y0 + spacing]]
-        x0, y0, x1, y1 = x0 + spacing, y0 + spacing, x1 - spacing, y1 - spacing
+        x0, y0, x1, y1 = x0 + du, y0 + spacing, x1 - du, y1 - spacing
+    if core == "serpentine":
+        step = core_spacing or 2 * spacing
+        u0, u1 = lo[0] + span, hi[0] - span  # the workpiece's own extent along the major axis
+        n = max(2, int(np.floor((u1 - u0) / step)) + 1)
+        us = u0 + (u1 - u0 - (n - 1) * step) / 2 + step * np.arange(n)
+        if abs(us[0] - corners[-1][0]) > abs(us[-1] - corners[-1][0]):
+            us = us[::-1]  # start at the nearer end
+        for i, u in enumerate(us):
+            a, b = (lo[1], hi[1]) if i % 2 == 0 else (hi[1], lo[1])
+            corners += [[u, a], [u, b]]
     C = np.asarray(corners)
     return c + C @ A.T, A
 
@@ -283,7 +316,7 @@ def make_plan(
             yaws += [member_yaw(i)] * (len(runs) + 1)  # the transit turns the sensor for the member
             here = z[-1]
     else:
-        C, axes = spiral_corners(template, s.span, s.spacing, s.spiral_angle)
+        C, axes = spiral_corners(template, s.span, s.spacing, s.spiral_angle, s.spiral_core, s.core_spacing)
         lines.append(np.vstack([here, C[0]]))
         kinds.append("transit")
         runs = _blend(C, blend)

@@ -41,17 +41,18 @@ def _jacobian(pose, xy, segs: Segments, center, fld: DistanceField | None = None
     ``fld``, Voronoi labels with it)."""
     q = inverse_xy(pose, center, xy)
     d, j, cp = nearest_fast(q, segs, fld) if fld is not None else nearest(q, segs)
-    diff = q - cp
-    n = np.where(d[:, None] > 1e-12, diff / np.maximum(d, 1e-12)[:, None], 0.0)
-    seg_n = np.stack([-segs.d[j, 1], segs.d[j, 0]], axis=1) / np.sqrt(segs.len2[j])[:, None]
-    n = np.where(d[:, None] > 1e-12, n, seg_n)
+    n = (q - cp) / np.maximum(d, 1e-12)[:, None]  # unit direction from the segment to the point
+    on = d <= 1e-12
+    if on.any():  # a point on its segment: the segment's normal
+        jo = j[on]
+        n[on] = np.stack([-segs.d[jo, 1], segs.d[jo, 0]], axis=1) / np.sqrt(segs.len2[jo])[:, None]
     c, s = np.cos(pose[2]), np.sin(pose[2])
-    Rm = np.array([[c, s], [-s, c]])  # R(-theta)
-    dR = np.array([[-s, c], [-c, -s]])  # d R(-theta) / d theta
+    # dq/dt = -R(-theta) (same for every point); dq/dtheta = dR(-theta)/dtheta (p - c - t)
     v = xy - center - np.asarray(pose[:2])
-    dq_dt = -Rm  # same for every point
-    dq_dth = v @ dR.T
-    J = np.column_stack([n @ dq_dt[:, 0], n @ dq_dt[:, 1], (n * dq_dth).sum(axis=1)])
+    J = np.empty((len(d), 3))
+    J[:, 0] = -(n[:, 0] * c - n[:, 1] * s)
+    J[:, 1] = -(n[:, 0] * s + n[:, 1] * c)
+    J[:, 2] = n[:, 0] * (-s * v[:, 0] + c * v[:, 1]) + n[:, 1] * (-c * v[:, 0] - s * v[:, 1])
     return d, J, j
 
 

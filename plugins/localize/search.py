@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from .cost import DistanceField, Eq3, Segments, distances, field_for
+from .cost import DistanceField, Eq3, Eq3Near, Segments, distances, field_for
 from .pose import rot2, wrap
 
 
@@ -35,6 +35,7 @@ class SearchResult:
     cost: float
     nfev: int = 0
     seed: int = -1
+    merged: bool = False
 
 
 def _principal_angle(xy: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -83,10 +84,11 @@ def robust_cost(d: np.ndarray, loss: str, scale: float) -> float:
 
 # Powell's tolerances, in the scaled units (1 unit = 1 mm of motion). The seeds only have to find the
 # basin of the lowest minimum, so they stop at 0.3 mm / 1e-3 relative; the winner is then polished on the
-# exact eq. (3) (:func:`polish`). Measured (benchmarks/localize_speed.py): the final pose is within 0.003 mm
-# / 0.002 deg of a 1 µm-tolerance Powell on the exact eq. (3) from the same seeds (localization.md §4).
+# exact eq. (3) (:func:`polish`). Measured (benchmarks/localize_speed.py, with the basin merging below): the
+# final pose is within 0.0064 mm / 0.0032 deg of a 1 µm-tolerance Powell on the exact eq. (3) from the same
+# seeds, every seed run to its end (localization.md §4, §7.3).
 SEED_OPTIONS = {"xtol": 0.3, "ftol": 1e-3, "maxfev": 3000}
-POLISH_OPTIONS = {"xtol": 1e-2, "ftol": 1e-6, "maxfev": 3000}
+POLISH_OPTIONS = {"xtol": 2e-3, "ftol": 1e-7, "maxfev": 3000}
 POLISH_STEP = 0.1  # initial direction length (units): the polish starts within a fraction of a mm
 
 
@@ -94,10 +96,23 @@ def _units(radius: float) -> np.ndarray:
     return np.array([1e-3, 1e-3, 1e-3 / max(radius, 1e-3)])  # 1 mm of motion per unit in each direction
 
 
-def powell(args) -> SearchResult:
+#: a seed whose best point comes within this (mm of motion, summed over x, y and the template's rim) of a
+#: minimum already found, at a cost not below it, has joined that basin: it stops there (localization.md §4)
+MERGE_DISTANCE = 3.0
+
+
+class _Merged(Exception):
+    """Raised inside Powell's objective when the seed's best point has joined a known basin."""
+
+
+def powell(args, known: list[SearchResult] | None = None) -> SearchResult:
     """Powell's method from one seed. A picklable task ``(xy, segments (S,2,2), center, seed, loss, scale,
     radius, k, grid)``; ``grid`` = (res, margin, cap) of the Voronoi-label field (built once per process), or
-    None for the all-pairs evaluation. The linear loss (eq. 3) goes through :class:`~.cost.Eq3`."""
+    None for the all-pairs evaluation. The linear loss (eq. 3) goes through :class:`~.cost.Eq3`.
+
+    ``known``: minima of the seeds already run; a seed whose best point so far (Powell's iterate) comes
+    within :data:`MERGE_DISTANCE` of one of them at a cost not below it stops (``SearchResult.merged``): it
+    has joined a basin whose minimum is known, so it would not become the lowest."""
     xy, seg_array, center, seed, loss, scale, radius, k, grid = args
     segs = Segments.from_array(seg_array, center)
     fld = field_for(seg_array, *grid) if grid is not None else None
@@ -112,7 +127,26 @@ def powell(args) -> SearchResult:
         def f(p):
             return robust_cost(distances(p * unit, xy, segs, fld), loss, scale)
 
-    r = minimize(f, np.asarray(seed) / unit, method="Powell", options=SEED_OPTIONS)
+    if not known:
+        r = minimize(f, np.asarray(seed) / unit, method="Powell", options=SEED_OPTIONS)
+        return SearchResult(np.asarray(r.x) * unit, float(r.fun), int(r.nfev), k)
+    ref = [(np.asarray(m.pose) / unit, m.cost) for m in known]
+    best = {"x": np.asarray(seed) / unit, "f": math.inf, "n": 0}
+
+    def watched(p):  # Powell's iterate is its best point so far: stop once that has joined a known basin
+        v = f(p)
+        best["n"] += 1
+        if v < best["f"]:
+            best.update(x=np.array(p), f=v)
+            for pr, c in ref:
+                if v >= c and float(np.abs(p - pr).sum()) <= MERGE_DISTANCE:
+                    raise _Merged
+        return v
+
+    try:
+        r = minimize(watched, np.asarray(seed) / unit, method="Powell", options=SEED_OPTIONS)
+    except _Merged:
+        return SearchResult(best["x"] * unit, float(best["f"]), best["n"], k, True)
     return SearchResult(np.asarray(r.x) * unit, float(r.fun), int(r.nfev), k)
 
 
@@ -120,7 +154,7 @@ def polish(xy: np.ndarray, segs: Segments, pose, radius: float) -> SearchResult:
     """Powell's method on the exact eq. (3) (every point against every segment) from ``pose``: the final
     step of the paper's search, so that its answer is the minimum of the paper's cost as written."""
     unit = _units(radius)
-    eq3 = Eq3(xy, segs, None, exact=True)
+    eq3 = Eq3Near(xy, segs, pose)  # exactly the all-pairs eq. (3), on each point's candidate segments
     opts = {**POLISH_OPTIONS, "direc": np.eye(3) * POLISH_STEP}
     r = minimize(lambda p: eq3(p * unit), np.asarray(pose) / unit, method="Powell", options=opts)
     return SearchResult(np.asarray(r.x) * unit, float(r.fun), int(r.nfev), -1)
@@ -145,6 +179,14 @@ def _pool(workers: int) -> tuple[ProcessPoolExecutor, float]:
     return _POOL["pool"], _POOL["rtt"]
 
 
+def _serial(tasks: list[tuple], first: SearchResult | None = None) -> list[SearchResult]:
+    """The seeds one after the other, each told the minima found so far (it stops when it joins one)."""
+    out = [] if first is None else [first]
+    for t in tasks[len(out) :]:
+        out.append(powell(t, [r for r in out if not r.merged]))
+    return out
+
+
 class SeedRunner:
     """Runs Powell from several seeds; parallel in one reused process pool when that is faster."""
 
@@ -158,7 +200,7 @@ class SeedRunner:
             return []
         if self.parallel == "never" or self.workers < 2 or len(tasks) < 2:
             self.reason = "serial: one worker or one seed"
-            return [powell(t) for t in tasks]
+            return _serial(tasks)
         t0 = time.perf_counter()
         first = powell(tasks[0])
         t_seed = time.perf_counter() - t0
@@ -171,17 +213,17 @@ class SeedRunner:
                     _pool(self.workers)
                 except (RuntimeError, OSError):
                     pass
-            return [first, *(powell(t) for t in rest)]
+            return _serial(tasks, first)
         try:
             pool, rtt = _pool(self.workers)
         except (RuntimeError, OSError) as e:  # e.g. spawn from an unguarded __main__: stay correct, go serial
             self.reason = f"serial: the process pool could not start ({type(e).__name__})"
-            return [first, *(powell(t) for t in rest)]
+            return _serial(tasks, first)
         serial = t_seed * len(rest)
         parallel = rtt + serial / min(self.workers, len(rest))
         if self.parallel == "auto" and serial <= parallel:
             self.reason = f"serial: {serial * 1e3:.1f} ms serial <= {parallel * 1e3:.1f} ms in the pool"
-            return [first, *(powell(t) for t in rest)]
+            return _serial(tasks, first)
         self.reason = (
             f"process pool of {self.workers}: seed {t_seed * 1e3:.1f} ms, round trip {rtt * 1e3:.1f} ms"
         )
@@ -214,6 +256,9 @@ def global_search(
     h, w = field.field.shape
     flat = field.field.ravel()
     rel = pts - center
+    offs = -(si[:, None] * w + si[None, :]).ravel()  # shift of the planned-frame points by -s
+    sy, sx = np.meshgrid(si * res, si * res, indexing="ij")
+    shift = np.stack([sx.ravel(), sy.ravel()], axis=1)
     best = []
     for ch in np.array_split(np.arange(len(thetas)), max(1, len(thetas) // 4)):
         th = thetas[ch]
@@ -222,18 +267,16 @@ def global_search(
         qx = c[:, None] * rel[:, 0] + s[:, None] * rel[:, 1] + center[0]
         qy = -s[:, None] * rel[:, 0] + c[:, None] * rel[:, 1] + center[1]
         base = field.lookup_flat(np.stack([qx, qy], axis=-1))  # (T, P)
-        offs = -(si[:, None] * w + si[None, :]).ravel()  # shift of the planned-frame points by -s
-        idx = (base[:, None, :] + offs[None, :, None]).astype(np.int32)
-        cost = np.take(flat, idx, mode="clip").mean(axis=2)  # (T, S)
-        sy, sx = np.meshgrid(si * res, si * res, indexing="ij")
-        shift = np.stack([sx.ravel(), sy.ravel()], axis=1)
+        trans = [shift @ rot2(t).T for t in th]  # t = R(theta) s
+        inside = [(np.abs(tr) <= window_xy + 1e-9).all(axis=1) for tr in trans]
+        sel = np.flatnonzero(np.any(inside, axis=0))  # only the shifts inside the window for some theta
+        idx = (base[:, None, :] + offs[sel][None, :, None]).astype(np.int32)
+        cost = np.take(flat, idx, mode="clip").mean(axis=2)  # (T, len(sel))
         for ti, t in enumerate(th):
-            trans = shift @ rot2(t).T  # t = R(theta) s
-            inside = (np.abs(trans) <= window_xy + 1e-9).all(axis=1)
-            cst = np.where(inside, cost[ti], np.inf)
+            cst = np.where(inside[ti][sel], cost[ti], np.inf)
             for k in np.argsort(cst)[:keep]:
                 if np.isfinite(cst[k]):
-                    best.append((float(cst[k]), trans[k, 0], trans[k, 1], float(t)))
+                    best.append((float(cst[k]), trans[ti][sel[k], 0], trans[ti][sel[k], 1], float(t)))
     best.sort()
     out: list[SearchResult] = []
     for cst, x, y, t in best:

@@ -122,14 +122,35 @@ def spiral_plan(tpl: Template, pitch: float = 0.012, margin: float = 0.06) -> li
     return [path[q == k] for k in range(q.max() + 1) if (q == k).sum() > 1]
 
 
+def _inside(outline: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Whether each point lies strictly inside the closed outline: a convex outline by the signs of its
+    edges' cross products (vectorised, as shapely.contains_xy but an order faster), others by shapely."""
+    P = np.asarray(outline, float)
+    d = np.roll(P, -1, axis=0) - P
+    turn = d[:, 0] * np.roll(d, -1, axis=0)[:, 1] - d[:, 1] * np.roll(d, -1, axis=0)[:, 0]
+    if not (np.all(turn >= 0) or np.all(turn <= 0)):
+        import shapely
+        from shapely.geometry import Polygon
+
+        return shapely.contains_xy(Polygon(P), xy[:, 0], xy[:, 1])
+    sign = 1.0 if turn.sum() > 0 else -1.0
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    box = (xy[:, 0] > lo[0]) & (xy[:, 0] < hi[0]) & (xy[:, 1] > lo[1]) & (xy[:, 1] < hi[1])
+    idx = np.flatnonzero(box)
+    q = xy[idx]
+    ok = np.ones(len(idx), bool)
+    for a, e in zip(P, d, strict=True):
+        ok &= sign * (e[0] * (q[:, 1] - a[1]) - e[1] * (q[:, 0] - a[0])) > 0
+    out = np.zeros(len(xy), bool)
+    out[idx[ok]] = True
+    return out
+
+
 def height_at(tpl: Template, xy: np.ndarray) -> np.ndarray:
     """Surface height under each XY: the highest member top containing it, else the table."""
-    import shapely
-    from shapely.geometry import Polygon
-
     z = np.full(len(xy), tpl.table_z)
     for m in tpl.members:
-        inside = shapely.contains_xy(Polygon(m.outline), xy[:, 0], xy[:, 1])
+        inside = _inside(m.outline, xy)
         z = np.where(inside, np.maximum(z, m.top), z)
     return z
 
@@ -157,3 +178,34 @@ def scan_lines(
     z[lost] = np.nan
     t = np.arange(len(z)) / s.rate
     return LaserScan(t, np.column_stack([xy, z]), line)
+
+
+def true_welds(tpl: Template, pose, variations: list[np.ndarray]) -> list[np.ndarray]:
+    """Where each weld (XY, (K, 2) per weld) really is when ``tpl`` is placed by ``pose`` (about its
+    centroid) with members off CAD by ``variations`` (3x3, :func:`member_variations`): a weld lies against
+    the side faces of the members it joins (those within 3 mm of it), so it follows each member across that
+    member's axis (:func:`~.refine.fuse_across`)."""
+    from shapely import distance, points
+    from shapely.geometry import Polygon
+
+    from .refine import fuse_across, member_axis
+
+    c = tpl.centroid
+    P = np.eye(3)
+    P[:2, :2] = rot2(pose[2])
+    P[:2, 2] = c + np.asarray(pose[:2]) - rot2(pose[2]) @ c
+    polys = [Polygon(m.outline) for m in tpl.members]
+    out = []
+    for w in tpl.welds:
+        pts = points(w.points[:, :2])
+        joined = [k for k, poly in enumerate(polys) if distance(poly, pts).min() <= 3e-3]
+        h = np.column_stack([w.points[:, :2], np.ones(len(w.points))])
+        placed = h @ P[:2].T
+        disp, normals = [], []
+        for k in joined:
+            T = P @ variations[k]
+            u = T[:2, :2] @ member_axis(tpl.members[k].outline)
+            disp.append(h @ T[:2].T - placed)
+            normals.append(np.array([-u[1], u[0]]))
+        out.append(placed + fuse_across(disp, normals))
+    return out

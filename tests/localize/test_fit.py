@@ -7,7 +7,8 @@ import math
 
 import numpy as np
 import pytest
-from weldcell.plugins.localize.cost import Eq3, Segments, distances, field_for
+from weldcell.plugins.localize import search
+from weldcell.plugins.localize.cost import Eq3, Eq3Near, Segments, distances, field_for
 from weldcell.plugins.localize.edges import extract_edges
 from weldcell.plugins.localize.fit import LocalizeSettings, localize
 from weldcell.plugins.localize.pose import apply_xy, pose_matrix, transform_template
@@ -78,6 +79,46 @@ def test_fast_eq3_has_the_value_of_the_paper_cost():
     far = np.vstack([xy, [[5.0, 5.0]]])  # a point far off the template's grid
     ref = distances((0, 0, 0), far, segs).sum()
     assert Eq3(far, segs, fld)((0.0, 0.0, 0.0)) == pytest.approx(ref, rel=1e-12)
+
+
+def test_polish_cost_near_a_pose_is_the_all_pairs_eq3():
+    """The polish's eq. (3) on each point's candidate segments equals the all-pairs sum near its start
+    pose (within its margin the candidates provably hold the nearest segment) and falls back beyond."""
+    tpl = warren_truss()
+    segs = Segments.of(tpl)
+    p0 = np.array([0.01, -0.004, math.radians(7.0)])
+    xy = _inspect(tpl, tuple(p0), seed=2).xy
+    near, exact = Eq3Near(xy, segs, p0, margin=1e-3), Eq3(xy, segs, None, exact=True)
+    assert near.a.shape[1] < len(segs.a) / 4  # a few candidates per point, not every segment
+    rng = np.random.default_rng(0)
+    for _ in range(20):  # inside the margin (<= 0.5 mm of motion) and beyond it (fallback)
+        for scale in (0.3e-3, 20e-3):
+            p = p0 + rng.uniform(-1, 1, 3) * np.array([scale, scale, scale / tpl.radius])
+            assert near(p) == pytest.approx(exact(p), rel=1e-12)
+
+
+def test_seeds_that_join_a_known_basin_stop_and_the_answer_is_unchanged(monkeypatch):
+    """A seed whose best point reaches a minimum already found stops there (fewer evaluations); the
+    paper's answer stays within 0.01 mm / 0.005 deg of running every seed to its end."""
+    tpl = ladder_frame()
+    edges = _inspect(tpl, (-0.006, 0.011, math.radians(12.0)), seed=3)
+    s = LocalizeSettings(method="paper", parallel="never")
+    counted = []
+    run = search.SeedRunner.run
+
+    def spy(self, tasks):
+        out = run(self, tasks)
+        counted.append(out)
+        return out
+
+    monkeypatch.setattr(search.SeedRunner, "run", spy)
+    merged = localize(tpl, edges, s)
+    monkeypatch.setattr(search, "MERGE_DISTANCE", -1.0)  # never merge: every seed runs to its end
+    full = localize(tpl, edges, s)
+    assert any(r.merged for r in counted[0]) and not any(r.merged for r in counted[1])
+    assert sum(r.nfev for r in counted[0]) < 0.85 * sum(r.nfev for r in counted[1])
+    assert np.abs(merged.pose[:2] - full.pose[:2]).max() < 1e-5
+    assert abs(math.degrees(merged.pose[2] - full.pose[2])) < 0.005
 
 
 def test_paper_method_ends_at_a_minimum_of_the_exact_eq3():

@@ -85,7 +85,9 @@ def test_a_span_too_small_for_the_placement_window_is_refused(ladder):
 
 def test_global_spiral_runs_along_the_principal_axes():
     tpl = transform_template(make_workpiece("truss", center=(1.0, 0.0)), (0.0, 0.0, np.radians(30)))
-    s = PlanSettings(plan="global", spacing=0.025, span=0.04, check_offset=0.0, check_angle=0.0)
+    s = PlanSettings(
+        plan="global", spacing=0.025, span=0.04, check_offset=0.0, check_angle=0.0, spiral_core="none"
+    )
     plan = make_plan(tpl, s, 0.21)
     c, A = principal_axes(tpl)
     assert abs(abs(A[:, 0] @ [np.cos(np.radians(30)), np.sin(np.radians(30))]) - 1) < 1e-3  # along the chords
@@ -100,6 +102,35 @@ def test_global_spiral_runs_along_the_principal_axes():
     turned = s.model_copy(update={"spiral_angle": np.radians(45)})
     report = check_constraints(make_plan(tpl, turned, 0.21), tpl, turned)
     assert all(min(v.values()) >= 2 for v in report["crossings"].values())
+
+
+@pytest.mark.parametrize("name", ["ladder", "truss", "spaceframe"])
+def test_default_spiral_crosses_long_members_along_their_whole_length(name):
+    """The default global plan (the paper's spiral + the serpentine core) crosses every major edge of every
+    member often enough, over the placement window, and the members along the major axis also in their
+    middle third (the paper's spiral alone crosses them only near its ends)."""
+    tpl = make_workpiece(name, center=(1.0, 0.0))
+    s = PlanSettings(plan="global", spacing=0.012, span=0.04)
+    plan = make_plan(tpl, s, 0.21)
+    report = check_constraints(plan, tpl, s)  # planned position and the four corners of the window
+    assert all(min(v.values()) >= 2 for v in report["crossings"].values())
+    c, A = principal_axes(tpl)
+    paper = make_plan(tpl, s.model_copy(update={"spiral_core": "none"}), 0.21)
+    for m in tpl.members:
+        P = (m.outline - c) @ A
+        if np.ptp(P[:, 0]) < 0.6 * np.ptp(np.vstack([x.outline for x in tpl.members]) @ A[:, 0]):
+            continue  # only the members that run along the major axis
+        segs = np.stack([m.outline, np.roll(m.outline, -1, axis=0)], axis=1)
+        lo, hi = np.quantile(P[:, 0], [0.0, 1.0])
+        middle = lo + (hi - lo) / 3, hi - (hi - lo) / 3
+
+        def in_middle(p, segs=segs, middle=middle):
+            hits, _ = _crossings(p.xy, segs)
+            u = (hits - c) @ A[:, 0]
+            return int(np.sum((u > middle[0]) & (u < middle[1])))
+
+        assert in_middle(plan) >= 8, m.id
+        assert in_middle(paper) < in_middle(plan) / 4, m.id
 
 
 def test_corners_are_blended():
