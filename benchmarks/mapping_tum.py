@@ -4,6 +4,9 @@ ground truth after SE(3) alignment, before and after the global optimisation.
 
     .venv/bin/python benchmarks/mapping_tum.py /data/rgbd_dataset_freiburg1_xyz
     .venv/bin/python benchmarks/mapping_tum.py SEQ --every 2 --max-frames 300
+    .venv/bin/python benchmarks/mapping_tum.py tests/mapping/data/slambook2_rgbd \
+        --intrinsics 518 519 325.5 253.5
+    .venv/bin/python benchmarks/mapping_slambook2.py SLAMBOOK2_CHECKOUT   # all 5 real Kinect frames
 
 The sequence is not shipped (it is downloaded from the benchmark's site, CC BY licence); the reader is
 tested on an excerpt of the simulated site written in the same format (tests/mapping/test_estimation.py).
@@ -24,12 +27,26 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=1, help="use every n-th frame")
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--depth-noise", type=float, default=1.4e-3, help="Kinect v1: sigma_z ~ 1.4e-3 z^2 [1/m]")
+    ap.add_argument(
+        "--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="override the calibration"
+    )
+    ap.add_argument("--depth-scale", type=float, default=5000.0, help="depth units per metre (TUM: 5000)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     from weldcell.plugins.mapping.settings import MapJobSettings
     from weldcell.plugins.mapping.tum import load_tum, run_visual
 
-    seq = load_tum(args.folder, max_frames=args.max_frames)
+    K = None
+    if args.intrinsics:
+        import cv2
+        from weldcell.hal.readings import Intrinsics
+
+        first = next(
+            ln.split()[1] for ln in (args.folder / "rgb.txt").read_text().splitlines() if ln[:1] != "#"
+        )
+        h, w = cv2.imread(str(args.folder / first)).shape[:2]
+        K = Intrinsics(w, h, *args.intrinsics)
+    seq = load_tum(args.folder, max_frames=args.max_frames, intrinsics=K, depth_scale=args.depth_scale)
     s = MapJobSettings.model_validate({"frontend": {"depth_noise": args.depth_noise}})
     r = run_visual(seq, s, every=args.every)
     print(

@@ -10,6 +10,7 @@ from weldcell.plugins.mapping.estimator import KeyFrame
 from weldcell.plugins.mapping.frontend import FrameFeatures
 from weldcell.plugins.mapping.interp import ate_rmse, interpolate_trajectory
 from weldcell.plugins.mapping.mapstore import KeyFrameStore, VoxelMap, back_project, tsdf_region
+from weldcell.plugins.mapping.plate import plate_corners_ml
 from weldcell.plugins.mapping.regions import (
     REGIONS_SCHEMA,
     RegionFuser,
@@ -151,6 +152,29 @@ def _region_tsdf(ctx, tr, region) -> np.ndarray | None:
     return np.asarray(mesh.vertices)
 
 
+def region_pixels(ctx, tr, region, poses: dict | None = None):
+    """The depth pixels of every key frame that observed ``region`` (at ``poses``: key frame ->
+    T_world_cam, default the store's), within the region's robust extent + 0.15 m, with their rays and
+    depth noise (:mod:`~weldcell.plugins.mapping.plate`)."""
+    from weldcell.plugins.mapping.plate import frame_observations, merge
+
+    if len(region.points) < 20:
+        return None
+    lo = np.percentile(region.points, 2, axis=0) - 0.15
+    hi = np.percentile(region.points, 98, axis=0) + 0.15
+    recs = {r.index: r for r in tr.store.records}
+    obs = []
+    for i in dict.fromkeys(region.observations):
+        if i not in recs or (poses is not None and i not in poses):
+            continue
+        T = recs[i].T_world_cam if poses is None else poses[i]
+        d = tr.store.read(recs[i])
+        obs.append(
+            frame_observations(d["depth"], tr.store.intrinsics, T, lo, hi, ctx.settings.frontend.depth_noise)
+        )
+    return merge(obs) if obs else None
+
+
 def evaluate(ctx, tr, rig, regions) -> dict:
     """ATE (key frames and camera-rate via eq. 2, slerp and linear) and AE on the plates."""
     est = tr.estimator
@@ -194,6 +218,10 @@ def _interp_effect(t_kf: np.ndarray, T_kf: np.ndarray, tq: np.ndarray) -> dict:
     }
 
 
+PLATE_MIN_VIEWS = 5
+"""Key frames a plate must be seen in for the maximum-likelihood plate measurement (plate.py)."""
+
+
 def _region_errors(rig, regions, A) -> dict:
     out: dict = {"regions_truth": 0, "regions_found": 0}
     ae, pos = [], []
@@ -213,8 +241,13 @@ def _region_errors(rig, regions, A) -> dict:
         out["regions_found"] += 1
         r = best[0]
         if w["corners"] is not None:
-            P = getattr(r, "dense", None)
-            corners = plate_corners(P if P is not None and len(P) else r.points)
+            obs = getattr(r, "plate", None)
+            # the pixels with their rays and noise (plate.py), from enough key frames: with 3 distant views
+            # the uniform-spread model failed (docs/methods/mapping.md), the points' rectangle did better
+            if obs is not None and len(set(r.observations)) >= PLATE_MIN_VIEWS:
+                corners = plate_corners_ml(obs)
+            else:  # the region's points (its TSDF surface measures worse: docs/methods/mapping.md)
+                corners = plate_corners(r.points)
             if corners is not None:
                 ae.append(corner_distance_error(corners, w["corners"]))
                 r.truth = w["name"]
@@ -250,6 +283,7 @@ def finish(ctx, rig, tr) -> dict:
         for r in regions:
             if r.decision != "rejected":
                 r.dense = _region_tsdf(ctx, tr, r)
+                r.plate = region_pixels(ctx, tr, r)
     figs = evaluate(ctx, tr, rig, regions)
     A = figs.pop("_align", None)
     t_kf, T_kf = est.keyframe_trajectory()

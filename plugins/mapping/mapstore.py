@@ -6,7 +6,7 @@ Map folder::
 
     map/
       map.ply                 global coloured cloud (one point per occupied voxel: mean position + colour)
-      regions/<id>.ply        dense TSDF surface (Open3D ScalableTSDFVolume) of each weld region
+      regions/<id>.ply        dense TSDF surface (Open3D UniformTSDFVolume over the region's box)
       keyframes.json          weldcell/keyframes@1: intrinsics, T_imu_cam, one record per key frame
       keyframes/000042.npz    rgb (H,W,3 uint8), depth (H,W float32 m), ORB pixels/descriptors/points
 """
@@ -112,27 +112,48 @@ class VoxelMap:
         return path
 
 
-def tsdf_region(keyframes: list[dict], box_min: np.ndarray, box_max: np.ndarray, voxel: float):
+TSDF_MAX_RESOLUTION = 160
+"""Voxels per side of a region's TSDF cube at most (memory: 20 bytes a voxel, 82 MB at 160³)."""
+
+
+def tsdf_region(
+    keyframes: list[dict], box_min: np.ndarray, box_max: np.ndarray, voxel: float, max_depth: float = 6.0
+):
     """Dense surface of one weld region: the key frames that see the box fused into an Open3D
-    ScalableTSDFVolume (truncation 4 voxels), cropped to the box; returns a legacy TriangleMesh."""
+    ``UniformTSDFVolume`` (a cube over the box, truncation 4 voxels), cropped to the box; returns a legacy
+    TriangleMesh, or None when no key frame sees the box.
+
+    Open3D's hash-based volumes (``ScalableTSDFVolume``, ``t.geometry.VoxelBlockGrid``) extract nothing
+    with the installed Open3D 0.20 build (a single flat view gave 0 vertices): the uniform volume over the
+    region's box is used instead. Its memory is bounded by ``TSDF_MAX_RESOLUTION`` (a region larger than
+    ``TSDF_MAX_RESOLUTION · voxel`` gets coarser voxels)."""
     import open3d as o3d
 
-    vol = o3d.pipelines.integration.ScalableTSDFVolume(
-        voxel_length=voxel, sdf_trunc=4 * voxel, color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8
+    box_min, box_max = np.asarray(box_min, float), np.asarray(box_max, float)
+    side = float(np.max(box_max - box_min))
+    res = int(min(TSDF_MAX_RESOLUTION, max(8, np.ceil(side / voxel))))
+    vox = side / res
+    center = (box_min + box_max) / 2
+    vol = o3d.pipelines.integration.UniformTSDFVolume(
+        length=side,
+        resolution=res,
+        sdf_trunc=4 * vox,
+        color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8,
+        origin=center - side / 2,
     )
     used = 0
     for kf in keyframes:
         K: Intrinsics = kf["intrinsics"]
         T = kf["T_world_cam"]
         depth = np.ascontiguousarray(kf["depth"], dtype=np.float32)
-        P, _ = back_project(depth, K, T, step=4, max_depth=6.0)
+        P, _ = back_project(depth, K, T, step=4, max_depth=max_depth)
         if not len(P) or not np.any(np.all((P >= box_min) & (P <= box_max), axis=1)):
             continue
         rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
             o3d.geometry.Image(np.ascontiguousarray(kf["rgb"])),
             o3d.geometry.Image(depth),
             depth_scale=1.0,
-            depth_trunc=6.0,
+            depth_trunc=max_depth,
             convert_rgb_to_intensity=False,
         )
         intr = o3d.camera.PinholeCameraIntrinsic(K.width, K.height, K.fx, K.fy, K.cx, K.cy)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 from weldcell.plugins.mapping.mapstore import back_project
+from weldcell.plugins.mapping.plate import PlateObservations
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.stages import Detection2D
@@ -97,6 +98,9 @@ class Region:
     dense: np.ndarray | None = None
     """Vertices of the region's TSDF surface, when built."""
     truth: str | None = None
+    plate: PlateObservations | None = None
+    """The depth pixels of the key frames that saw the region, with their rays and noise
+    (set by the job after driving): what the plate measurement (AE) uses."""
 
     @property
     def center(self) -> np.ndarray:

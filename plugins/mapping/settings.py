@@ -74,7 +74,9 @@ class MapSettings(Settings):
     voxel: Length = Field(0.05, gt=0, description="voxel size of the global coloured map [m]")
     max_depth: Length = Field(8.0, gt=0, description="depth used for the map [m]")
     pixel_step: int = Field(2, ge=1, le=16, description="use every n-th pixel row/column of a key frame")
-    tsdf: bool = Field(True, description="dense TSDF (Open3D ScalableTSDFVolume) of the weld regions")
+    tsdf: bool = Field(
+        True, description="dense TSDF (Open3D UniformTSDFVolume over each region's box) of the weld regions"
+    )
     tsdf_voxel: Length = Field(0.01, gt=0, description="TSDF voxel size [m]")
     region_margin: Length = Field(0.3, ge=0, description="TSDF box margin around a weld region [m]")
 

@@ -38,6 +38,8 @@ class TumSequence:
     gt_times: np.ndarray
     gt_poses: np.ndarray
     intrinsics: Intrinsics
+    depth_scale: float = DEPTH_SCALE
+    """Depth image units per metre (the benchmark's 5000)."""
 
     def frame(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Colour (RGB uint8) and depth (float32 metres, 0 = none) of frame ``i``."""
@@ -47,7 +49,7 @@ class TumSequence:
         d = cv2.imread(str(self.depth[i]), cv2.IMREAD_UNCHANGED)
         if bgr is None or d is None:
             raise DataError(f"cannot read frame {i} of {self.root}", "check the rgb/ and depth/ PNG files")
-        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), d.astype(np.float32) / DEPTH_SCALE
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), d.astype(np.float32) / np.float32(self.depth_scale)
 
     def truth_at(self, t: float, max_dt: float = 0.02) -> np.ndarray | None:
         """Ground-truth pose nearest to ``t`` (None if none within ``max_dt``)."""
@@ -73,9 +75,10 @@ def load_tum(
     max_dt: float = 0.02,
     max_frames: int | None = None,
     intrinsics: Intrinsics | None = None,
+    depth_scale: float = DEPTH_SCALE,
 ) -> TumSequence:
     """Read a TUM RGB-D sequence folder (see the module docstring); ``intrinsics`` overrides the
-    calibration chosen from the folder name."""
+    calibration chosen from the folder name, ``depth_scale`` the depth units per metre."""
     root = Path(root)
     tc, rgb = _list(root / "rgb.txt")
     td, dep = _list(root / "depth.txt")
@@ -109,7 +112,7 @@ def load_tum(
     key = next((k for k in CALIBRATION if k in str(root)), None)
     fx, fy, cx, cy = CALIBRATION[key] if key else (525.0 * w / 640, 525.0 * w / 640, (w - 1) / 2, (h - 1) / 2)
     K = intrinsics or Intrinsics(w, h, fx, fy, cx, cy)
-    return TumSequence(root, np.asarray(times), rp, dp, rows[:, 0], T, K)
+    return TumSequence(root, np.asarray(times), rp, dp, rows[:, 0], T, K, float(depth_scale))
 
 
 def run_visual(seq: TumSequence, settings, every: int = 1) -> dict:
