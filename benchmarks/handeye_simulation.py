@@ -21,12 +21,19 @@ listing's sequential inner loop, the radius cost, the consensus refit, and 3 out
 consensus verifier (no ground truth); (5) ``icp``: the realistic verifier of eq. 13 (ICP of the flange
 model against a simulated verification scan with the same per-point σ) instead of the oracle; run
 only with ``--only icp``.
+
+Fig. 9 runs as one ``weldcell study`` of the trial function ``handeye_simulation:fig9_trial`` (one trial =
+one realization at one σ; ``sigma=cycle(...)``, statistics per σ with ``--by sigma``) on Dask
+(``--workers``, ``--scheduler``; ``--workers 0``: in this process), seeded as before, so its numbers are
+those of the earlier loop. The other sections still loop here.
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 from weldcell.plugins.handeye.iterative import iterative_pool
@@ -75,20 +82,58 @@ def slope(S: np.ndarray, y) -> float:
     return float(np.polyfit(S, np.asarray(y, float), 1)[0])
 
 
-def fig9(sigmas: np.ndarray, nreal: int, budget: int) -> None:
+ERR_KEYS = ("dx", "dy", "dz", "droll", "dpitch", "dyaw", "ws")
+FIG9_METHODS = ("all", "pub", "wide")
+
+
+def realization(sigma: float, k: int):
+    """Realization ``k`` at noise ``sigma`` (m): (cell, noisy camera points), seeded as before."""
+    rng = np.random.default_rng(1000 * k + int(round(sigma * 1e5)))
+    cell = simulate_cell(rng=rng)
+    return cell, cell.noisy_p_cam(sigma, rng)
+
+
+def fig9_trial(values: dict, seed: int, trial: int) -> dict:
+    """One Fig. 9 realization (study trial function): ``values`` sigma (m), levels (how many sigmas are
+    cycled: trial i is realization i // levels), budget. Figures: ``{method: {dx, ..., ws}}``, the
+    :func:`errs` of all-data, Algorithm 1 and the wide search (mm, deg)."""
+    sigma, k = float(values["sigma"]), trial // int(values.get("levels", 1))
+    cell, c = realization(sigma, k)
+    gt = GroundTruthVerifier(cell.T_base_camera)
+    H = {
+        "all": scaled_svd_fit(c, cell.p_base).T,
+        "pub": iterative_pool(c, cell.p_base, gt).H,
+        "wide": iterative_pool(c, cell.p_base, gt, search="wide", budget=int(values["budget"]), seed=k).H,
+    }
+    return {m: dict(zip(ERR_KEYS, errs(H[m], cell).tolist(), strict=True)) for m in FIG9_METHODS}
+
+
+def fig9(sigmas: np.ndarray, nreal: int, budget: int, options=None, out: Path | None = None) -> None:
+    """Fig. 9 through ``weldcell study``: ``nreal`` x len(sigmas) trials of :func:`fig9_trial`."""
+    from weldcell.sdk.scale.cluster import ClusterOptions
+    from weldcell.sdk.scale.progress import TaskProgress
+    from weldcell.sdk.scale.study import run_study
+
+    levels = ", ".join(repr(float(s)) for s in sigmas)
+    study = run_study(
+        None,
+        nreal * len(sigmas),
+        [f"sigma=cycle({levels})", f"levels=choice({len(sigmas)})", f"budget=choice({budget})"],
+        out or Path(tempfile.mkdtemp(prefix="weldcell-fig9-")),
+        options or ClusterOptions(),
+        progress=TaskProgress(True),
+        function="handeye_simulation:fig9_trial",
+        by="sigma",
+    )
+    trials = sorted(study["trials"].values(), key=lambda t: t["trial"])
+    lost = [t for t in trials if t["status"] != "ok"]
+    if lost:
+        raise SystemExit(f"{len(lost)} realizations did not finish: {lost[0].get('error', {}).get('line')}")
     rows = []
     for sigma in sigmas:
-        R: dict[str, list] = {"all": [], "pub": [], "wide": []}
-        for k in range(nreal):
-            rng = np.random.default_rng(1000 * k + int(round(sigma * 1e5)))
-            cell = simulate_cell(rng=rng)
-            c = cell.noisy_p_cam(sigma, rng)
-            gt = GroundTruthVerifier(cell.T_base_camera)
-            R["all"].append(errs(scaled_svd_fit(c, cell.p_base).T, cell))
-            R["pub"].append(errs(iterative_pool(c, cell.p_base, gt).H, cell))
-            w = iterative_pool(c, cell.p_base, gt, search="wide", budget=budget, seed=k)
-            R["wide"].append(errs(w.H, cell))
-        M = {key: np.array(v) for key, v in R.items()}
+        mine = [t["figures"] for t in trials if t["values"]["sigma"] == float(sigma)]
+        M = {m: np.array([[f[f"{m}.{k}"] for k in ERR_KEYS] for f in mine]) for m in FIG9_METHODS}
+        cell, _ = realization(float(sigma), nreal - 1)
         rows.append((sigma * 1e3, M, crlb_row(pairs_crlb(cell.p_cam_true, sigma), cell)))
     print(f"## Fig. 9: error vs noise (75 poses, {nreal} realizations per level, wide budget {budget})\n")
     print(
@@ -333,6 +378,8 @@ def main() -> None:
     ap.add_argument("--icp-realizations", type=int, default=10, help="per level in the ICP section")
     ap.add_argument("--icp-budget", type=int, default=16, help="wide search budget with the ICP verifier")
     ap.add_argument("--only", choices=SECTIONS, action="append", help="run only these (icp: only so)")
+    ap.add_argument("--workers", type=int, default=None, help="fig9: local Dask workers (0: in this process)")
+    ap.add_argument("--scheduler", default=None, help="fig9: an existing Dask scheduler address")
     a = ap.parse_args()
     if a.budget <= 0 or a.icp_budget <= 0 or a.icp_realizations <= 0 or (a.realizations or 1) <= 0:
         ap.error("budgets and realization counts must be positive integers")
@@ -341,7 +388,14 @@ def main() -> None:
     run = set(a.only or SECTIONS[:-1])  # the ICP section (~13 min) only on request
     t0 = time.time()
     if "fig9" in run:
-        fig9(sigmas, nreal, a.budget)
+        from weldcell.sdk.scale.cluster import ClusterOptions
+
+        fig9(
+            sigmas,
+            nreal,
+            a.budget,
+            ClusterOptions(workers=None if a.scheduler else a.workers, scheduler=a.scheduler),
+        )
     if "fig10" in run:
         fig10(max(nreal, 100), a.budget)
     if "budget" in run:

@@ -13,24 +13,28 @@ stated sigma 5 deg. Success: status ok and error < 5 cm / 0.5 deg; wrong-ok: sta
 Also ``--n`` trials against a prior map of another site and with a magnetometer 90 deg off (sigma 5 deg).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/relocalize.py [--trials 5] [--n 20] [--part a|b|both]
+        [--workers N] [--scheduler ADDRESS] [--rows gnss imu ...] [--out DIR] [--seed S]
 
-Part B prints wall time and the process CPU time of each relocalization (on a shared, loaded machine
-the CPU time is what one relocalization costs; numpy/BLAS limited to one thread).
+Part B is one ``weldcell study`` of the trial function ``weldcell.plugins.relocalize.table4:trial``
+(``priors=cycle(rows)``, statistics per row with ``by="priors"``) on Dask: each worker prepares the prior
+maps once; each trial draws its visit from its own study seed. It prints wall time and the process CPU
+time of each relocalization (on a shared, loaded machine the CPU time is what one relocalization costs;
+numpy/BLAS limited to one thread). The same study from the command line is in docs/scale-out.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 import time
-import zlib
+from math import nan
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from weldcell.plugins.relocalize import synth
 from weldcell.plugins.relocalize.local_reg import METHODS, refine
-from weldcell.plugins.relocalize.relocalize import PriorMap, Priors, RelocalizeSettings, relocalize
 from weldcell.sdk.cloud import read_cloud
 from weldcell.sdk.registration.ndt import NDT
 
@@ -82,68 +86,64 @@ def part_a(trials):
     local_table("simulated site / visit", site, synth.visit(site, (20, 15), 9, T, seed=1), T, trials, rng)
 
 
-def _trial(rng, site, combo):
-    yaw = rng.uniform(-math.pi, math.pi)
-    c = np.array([20.0, 15.0]) + rng.uniform(-8, 8, 2)
-    T = synth.pose(*(c + rng.uniform(-3, 3, 2) - [20, 15]), rng.uniform(-0.3, 0.3), yaw)
-    cur = synth.visit(site, tuple(c), 9.0, T, seed=int(rng.integers(1 << 30)))
-    pr = Priors()
-    if "gnss" in combo:
-        pr.position, pr.position_sigma = T[:3, 3] + rng.normal(scale=1.0, size=3), 2.0
-    if "imu" in combo:
-        pr.yaw, pr.yaw_sigma = yaw + math.radians(rng.normal(scale=3.0)), math.radians(5.0)
-    if combo == "imu90":  # magnetometer disturbed by steel: 90 deg off, stated 5 deg
-        pr.yaw, pr.yaw_sigma = yaw + math.pi / 2, math.radians(5.0)
-        pr.position, pr.position_sigma = T[:3, 3] + rng.normal(scale=1.0, size=3), 2.0
-    return T, cur, pr
+ROWS = ("gnss", "imu", "gnss+imu", "neither", "other-site", "imu90+gnss")
+LABELS = {"other-site": "other-site gnss+imu", "imu90+gnss": "imu90 + gnss"}
 
 
-def part_b(n, method):
-    site = synth.site_cloud(0, SIZE)
-    other = synth.site_cloud(17, SIZE)
-    s = RelocalizeSettings(method=method)
-    # the prior maps are prepared once, as a robot does when it loads its prior map (NDT cells, KD-tree,
-    # small-gicp covariances); that time is reported apart and not in the per-relocalization times
+def part_b(n, method, workers, scheduler, out, seed, rows=ROWS):
+    """Table IV through ``weldcell study``: ``n`` trials per row of the trial function
+    ``weldcell.plugins.relocalize.table4:trial`` (rows by ``cycle``), statistics per row (``--by``)."""
+    from weldcell.sdk.scale.cluster import ClusterOptions
+    from weldcell.sdk.scale.progress import TaskProgress
+    from weldcell.sdk.scale.study import run_study
+
+    opts = ClusterOptions(workers=None if scheduler else workers, scheduler=scheduler)
+    vary = [f"priors=cycle({', '.join(rows)})", f"method=choice({method})"]
     t0 = time.perf_counter()
-    site_pm = PriorMap(site, s.ndt).warm(s)
-    print(f"\nprior map prepared once: {len(site)} points, {time.perf_counter() - t0:.2f} s")
-    other_pm = PriorMap(other, s.ndt).warm(s)
-    print(f"\nTable IV protocol (simulation), method {method}, {n} per row")
+    study = run_study(
+        None,
+        n * len(rows),
+        vary,
+        Path(out),
+        opts,
+        seed=seed,
+        progress=TaskProgress(False),
+        function="weldcell.plugins.relocalize.table4:trial",
+        by="priors",
+    )
+    print(f"\nstudy: {study['runner']}, {time.perf_counter() - t0:.0f} s wall, {out}/index.html")
+    print(
+        f"\nTable IV protocol (simulation), method {method}, {n} per row (weldcell study --seed {seed}); "
+        "each worker prepares the prior map once, not in the times"
+    )
     print(
         "| priors | success | failed | wrong ok | wall mean ± sd (s) | CPU mean / median (s) "
         "| min overlap ok | max overlap failed |"
     )
     print("|---|---|---|---|---|---|---|---|")
-    for combo in ("gnss", "imu", "gnss+imu", "neither", "other-site gnss+imu", "imu90 + gnss"):
-        rng = np.random.default_rng(zlib.crc32(combo.encode()))
-        good = fail = wrong = 0
-        ts, cpu, ov_ok, ov_fail, wrongs = [], [], [], [], []
-        for _ in range(n):
-            T, cur, pr = _trial(rng, site, combo.split()[0].replace("other-site", "gnss+imu"))
-            c0 = time.process_time()
-            res = relocalize(other_pm if combo.startswith("other") else site_pm, cur, pr, s)
-            ts.append(res.seconds)
-            cpu.append(time.process_time() - c0)
-            correct = not combo.startswith("other") and all(
-                np.array(err(T, res.T_prior_current)) < [0.05, 0.5]
-            )
-            if res.status == "ok":
-                ov_ok.append(res.overlap)
-                good += correct
-                wrong += not correct
-                if not correct:
-                    e = err(T, res.T_prior_current) if not combo.startswith("other") else ("other site",)
-                    wrongs.append(f"{combo}: error {e}, overlap {res.overlap:.3f}, {res.priors_used}")
-            else:
-                ov_fail.append(res.overlap)
-                fail += 1
+    for row in rows:
+        g = study["groups"].get(row, {})
+        st, c = g.get("statistics", {}), g.get("counts", {})
+
+        def total(k, st=st):
+            return round(st[k]["mean"] * st[k]["n"]) if st.get(k, {}).get("n") else 0
+
+        wall, cpu = st.get("wall_s", {}), st.get("cpu_s", {})
+        lost = c.get("trials", 0) - c.get("ok", 0)
         print(
-            f"| {combo} | {good}/{n} | {fail} | {wrong} | {np.mean(ts):.2f} ± {np.std(ts):.2f} "
-            f"| {np.mean(cpu):.2f} / {np.median(cpu):.2f} "
-            f"| {min(ov_ok, default=float('nan')):.3f} | {max(ov_fail, default=float('nan')):.3f} |"
+            f"| {LABELS.get(row, row)} | {total('success')}/{c.get('trials', 0)} | {total('failed')} "
+            f"| {total('wrong_ok')} | {wall.get('mean', nan):.2f} ± {wall.get('std', nan):.2f} "
+            f"| {cpu.get('mean', nan):.2f} / {cpu.get('p50', nan):.2f} "
+            f"| {st.get('overlap_ok', {}).get('min', nan):.3f} "
+            f"| {st.get('overlap_failed', {}).get('max', nan):.3f} |"
+            + (f" ({lost} trials lost)" if lost else "")
         )
-        for w in wrongs:
-            print(f"  wrong ok: {w}")
+    for t in study["trials"].values():
+        if (t.get("figures") or {}).get("wrong_ok"):
+            f = t["figures"]
+            print(
+                f"  wrong ok: trial {t['trial']} ({t['values']['priors']}): overlap {f.get('overlap_ok'):.3f}"
+            )
 
 
 def main():
@@ -152,11 +152,19 @@ def main():
     ap.add_argument("--n", type=int, default=20)
     ap.add_argument("--part", choices=["a", "b", "both"], default="both")
     ap.add_argument("--method", choices=METHODS, default="gicp")
+    ap.add_argument("--workers", type=int, default=None, help="part B: local Dask workers (0: in-process)")
+    ap.add_argument("--scheduler", default=None, help="part B: an existing Dask scheduler address")
+    ap.add_argument(
+        "--out", help="part B: study folder (default: a new temporary one; a finished one resumes)"
+    )
+    ap.add_argument("--seed", type=int, default=0, help="part B: the study's seed")
+    ap.add_argument("--rows", nargs="*", choices=ROWS, default=list(ROWS), help="part B: the rows to run")
     a = ap.parse_args()
     if a.part in ("a", "both"):
         part_a(a.trials)
     if a.part in ("b", "both"):
-        part_b(a.n, a.method)
+        out = a.out or tempfile.mkdtemp(prefix="weldcell-table4-")
+        part_b(a.n, a.method, a.workers, a.scheduler, out, a.seed, tuple(a.rows))
 
 
 if __name__ == "__main__":

@@ -18,13 +18,24 @@ job scores the seam frames (origin on the seam, z = approach, x = travel) agains
 analytic ground truth: translation and rotation RMSE (eq. 22), F1 (eq. 21). ``n_d`` is the number of
 seam nodes, ``n_o`` the number of torch poses after interpolation (the paper's columns). Prints a
 markdown table; nothing is asserted.
+
+Each row is a ``weldcell study`` of the trial function ``scan_plan_table1:trial`` (one trial = one seed:
+the capture seed is the trial's index, so trial i of the ``exact`` and ``hand-eye`` rows sees the same camera
+noise), on one Dask cluster shared by the rows (``--workers``, ``--scheduler``; ``--workers 0``: in this
+process). One row alone from the command line (in benchmarks/)::
+
+    weldcell study --function scan_plan_table1:trial --trials 3 -o t1-ypipe \
+        --vary 'piece=choice(y-pipe)' --vary 'variant=choice(hand-eye)'
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import tempfile
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -162,6 +173,62 @@ def run_case(
     return out
 
 
+def trial(values: dict[str, Any], seed: int, trial: int) -> dict:
+    """One Table I trial (study trial function): ``values`` piece, variant (exact | hand-eye), views,
+    low_views, anchor, prior_t / prior_r (m, rad; both or neither); the capture seed is ``trial``."""
+    prior = (float(values["prior_t"]), float(values["prior_r"])) if "prior_t" in values else None
+    return run_case(
+        str(values.get("piece", "cylinder-on-plate")),
+        trial,
+        int(values.get("views", 8)),
+        values.get("variant", "exact") == "hand-eye",
+        int(values.get("low_views", 4)),
+        str(values.get("anchor", "mean")),
+        prior,
+    )
+
+
+def study_rows(args, prior, out: Path) -> list[tuple[str, str, list[dict]]]:
+    """Every (piece, variant) row as a study of ``args.seeds`` trials on one shared cluster."""
+    from weldcell.sdk.scale.cluster import ClusterOptions
+    from weldcell.sdk.scale.progress import TaskProgress
+    from weldcell.sdk.scale.study import run_study, shared_cluster
+
+    fixed = [
+        f"views=choice({args.views})",
+        f"low_views=choice({args.low_views})",
+        f"anchor=choice({args.anchor})",
+    ]
+    if prior:
+        fixed += [f"prior_t=choice({prior[0]!r})", f"prior_r=choice({prior[1]!r})"]
+    rows = []
+    with shared_cluster(ClusterOptions(workers=args.workers, scheduler=args.scheduler)) as opts:
+        for kind in args.pieces:
+            for variant in args.variants:
+                study = run_study(
+                    None,
+                    args.seeds,
+                    [f"piece=choice({kind})", f"variant=choice({variant})", *fixed],
+                    out / f"{kind}-{variant}",
+                    opts,
+                    progress=TaskProgress(True),
+                    function="scan_plan_table1:trial",
+                )
+                trials = sorted(study["trials"].values(), key=lambda t: t["trial"])
+                for t in trials:
+                    if t["status"] != "ok":
+                        print(f"  {kind} {variant} seed {t['trial']}: {t['status']}: {t['error']['line']}")
+                ints = ("seams", "n_d", "n_o", "points", "on_seams")  # counts (figures come back as floats)
+                nans = dict.fromkeys(("t_mm", "r_deg", "a_deg", "on_t_mm", "on_r_deg"), float("nan"))
+                res = [  # NaN (no seam found) is not a figure: back as NaN, as the table prints it
+                    {**nans, **t["figures"], **{k: int(t["figures"][k]) for k in ints}}
+                    for t in trials
+                    if t["status"] == "ok"
+                ]
+                rows.append((kind, variant, res))
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
@@ -193,24 +260,21 @@ def main() -> None:
         metavar=("SIGMA_T", "SIGMA_R"),
         help="reconstruct()'s pose prior (m, rad), e.g. 0.002 0.005236; default none (least squares)",
     )
+    ap.add_argument("--workers", type=int, default=None, help="local Dask workers (0: in this process)")
+    ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler address")
+    ap.add_argument("--out", type=Path, help="the studies' folder (default: a new temporary one)")
     args = ap.parse_args()
     prior = tuple(args.prior) if args.prior else None
-    rows = []
-    for kind in args.pieces:
-        for variant in args.variants:
-            res = [
-                run_case(kind, s, args.views, variant == "hand-eye", args.low_views, args.anchor, prior)
-                for s in range(args.seeds)
-            ]
-            for i, r in enumerate(res):
-                print(
-                    f"  {kind} {variant} seed {i}: {r['seams']} seam(s), n_d {r['n_d']}, "
-                    f"{r['t_mm']:.3f} mm, {r['r_deg']:.3f} deg (approach {r['a_deg']:.3f}), "
-                    f"F1 {r['f1']:.3f}, length {r['length_ratio']:.3f}, {r['points']} pts, "
-                    f"reconstruct {r['t_reconstruct']:.1f} s, plan {r['t_plan']:.2f} s",
-                    flush=True,
-                )
-            rows.append((kind, variant, res))
+    rows = study_rows(args, prior, args.out or Path(tempfile.mkdtemp(prefix="weldcell-table1-")))
+    for kind, variant, res in rows:
+        for i, r in enumerate(res):
+            print(
+                f"  {kind} {variant} seed {i}: {r['seams']} seam(s), n_d {r['n_d']}, "
+                f"{r['t_mm']:.3f} mm, {r['r_deg']:.3f} deg (approach {r['a_deg']:.3f}), "
+                f"F1 {r['f1']:.3f}, length {r['length_ratio']:.3f}, {r['points']} pts, "
+                f"reconstruct {r['t_reconstruct']:.1f} s, plan {r['t_plan']:.2f} s",
+                flush=True,
+            )
     print()
     print(
         f"Table I (paper 000) in simulation: D415 noise, {args.views}+{args.low_views}+1 views, "

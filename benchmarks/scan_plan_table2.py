@@ -24,13 +24,24 @@ shadows. Timed, median of ``--repeats`` runs after one warm-up:
 Speed = found seam length / time. Accuracy columns use the job's ``evaluate()`` (eq. 21 F1, eq. 22
 RMSE of the seam frames). Prints a markdown table; nothing is asserted. Uses 2 threads (KD-tree
 queries); set OMP/BLAS threads yourself if you want to pin it.
+
+The four placements run as one ``weldcell study`` of the trial function ``scan_plan_table2:trial``
+(``placement=cycle(...)``, one trial each), by default on one Dask worker so that no two timings compete
+for the cores (``--workers``, ``--scheduler``; ``--workers 0``: in this process). The render seed is
+``--seed`` for every placement, as before. From the command line (in benchmarks/)::
+
+    weldcell study --function scan_plan_table2:trial --trials 4 --workers 1 --by placement -o t2 \
+        --vary 'placement=cycle(flat, tilted, horizontal, vertical)'
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import tempfile
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import open3d as o3d
@@ -130,18 +141,63 @@ def run(placement: str, preset: str, distance: float, repeats: int, seed: int) -
     )
 
 
+def trial(values: dict[str, Any], seed: int, trial: int) -> dict:
+    """One placement (study trial function): ``values`` placement, preset, distance (m), repeats,
+    render_seed (default 0: the same frame noise as earlier runs)."""
+    return run(
+        str(values.get("placement", "flat")),
+        str(values.get("preset", "realsense-d415")),
+        float(values.get("distance", 0.5)),
+        int(values.get("repeats", 5)),
+        int(values.get("render_seed", 0)),
+    )
+
+
+def study_rows(args) -> list[dict]:
+    """The four placements as one study (one trial each); rows in the table's order."""
+    from weldcell.sdk.scale.cluster import ClusterOptions
+    from weldcell.sdk.scale.progress import TaskProgress
+    from weldcell.sdk.scale.study import run_study
+
+    study = run_study(
+        None,
+        len(PLACEMENTS),
+        [
+            f"placement=cycle({', '.join(PLACEMENTS)})",
+            f"preset=choice({args.preset})",
+            f"distance=choice({args.distance!r})",
+            f"repeats=choice({args.repeats})",
+            f"render_seed=choice({args.seed})",
+        ],
+        args.out or Path(tempfile.mkdtemp(prefix="weldcell-table2-")),
+        ClusterOptions(workers=None if args.scheduler else args.workers, scheduler=args.scheduler),
+        progress=TaskProgress(True),
+        function="scan_plan_table2:trial",
+        by="placement",
+    )
+    rows = []
+    for t in sorted(study["trials"].values(), key=lambda t: t["trial"]):
+        if t["status"] != "ok":
+            print(f"  {t['values']['placement']}: {t['status']}: {t['error']['line']}")
+            continue
+        counts = {k: int(t["figures"][k]) for k in ("n_capture", "n_roi", "n_clean", "seams")}
+        nans = {"t_mm": float("nan"), "r_deg": float("nan")}  # NaN (no seam) is not a figure
+        rows.append({"placement": t["values"]["placement"], **nans, **t["figures"], **counts})
+        print(f"  {t['values']['placement']}: {t['figures']}", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--preset", default="realsense-d415")
     ap.add_argument("--distance", type=float, default=0.5, help="camera to part (m)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=1, help="local Dask workers (0: in this process)")
+    ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler address")
+    ap.add_argument("--out", type=Path, help="the study's folder (default: a new temporary one)")
     args = ap.parse_args()
-    rows = []
-    for placement in PLACEMENTS:
-        r = run(placement, args.preset, args.distance, args.repeats, args.seed)
-        print(f"  {placement}: {r}", flush=True)
-        rows.append(r)
+    rows = study_rows(args)
     print()
     print(
         f"Table II (paper 000) in simulation: {args.preset}, one frame at {args.distance} m, median of "

@@ -45,6 +45,14 @@ def derive_voxel(a: np.ndarray, b: np.ndarray, max_points: int) -> float:
     return v
 
 
+def features(pts: np.ndarray, voxel: float):
+    """(downsampled Open3D cloud with normals, its FPFH features) at ``voxel``: computed once per cloud
+    and voxel, then matched by as many RANSAC runs as needed (:func:`ransac`)."""
+    import open3d as o3d
+
+    return _features(o3d, pts, voxel)
+
+
 def _features(o3d, pts: np.ndarray, voxel: float):
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(voxel)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
@@ -62,9 +70,17 @@ def global_register(
 
     s = settings or GlobalSettings()
     voxel = s.voxel or derive_voxel(target, source, s.max_points)
+    return ransac(_features(o3d, target, voxel), _features(o3d, source, voxel), voxel, s)
+
+
+def ransac(target_features, source_features, voxel: float, settings: GlobalSettings) -> GlobalResult:
+    """T_target_source from precomputed :func:`features` by Open3D's feature-matching RANSAC (seeded)."""
+    import open3d as o3d
+
+    s = settings
+    pt, ft = target_features
+    ps, fs = source_features
     o3d.utility.random.seed(s.seed)
-    pt, ft = _features(o3d, target, voxel)
-    ps, fs = _features(o3d, source, voxel)
     reg = o3d.pipelines.registration
     dist = 1.5 * voxel
     res = reg.registration_ransac_based_on_feature_matching(

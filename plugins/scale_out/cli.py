@@ -111,15 +111,22 @@ def batch_command(items, out_dir, command_args, reports, scheduler, workers, ret
 
 
 @click.command("study")
-@click.argument("profile", type=click.Path(path_type=Path))
+@click.argument("profile", type=click.Path(path_type=Path), required=False)
+@click.option(
+    "--function",
+    metavar="MODULE:FUNCTION",
+    help="Run this trial function instead of a profile's job: fn(values, seed=, trial=) -> figures "
+    "(docs/scale-out.md), e.g. weldcell.plugins.relocalize.table4:trial.",
+)
+@click.option("--by", metavar="KEY", help="A varied key whose values group the statistics (a table's rows).")
 @click.option("--trials", type=click.IntRange(min=1), required=True, help="Number of trials.")
 @click.option(
     "--vary",
     multiple=True,
     metavar="KEY=DISTRIBUTION",
     help="A profile key and its distribution: uniform(a,b), normal(mu,sigma), choice(v1,v2,...); "
-    "arguments may carry units, e.g. job.settings.worker.placement_offset='uniform(5 mm, 25 mm)'. "
-    "Repeatable.",
+    "cycle(v1,v2,...) (trial i takes value i mod k); arguments may carry units, e.g. "
+    "job.settings.worker.placement_offset='uniform(5 mm, 25 mm)'. Repeatable.",
 )
 @click.option(
     "-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder."
@@ -129,18 +136,32 @@ def batch_command(items, out_dir, command_args, reports, scheduler, workers, ret
 @click.option("--reports", is_flag=True, help="Let every trial write its job report and pictures.")
 @_cluster_options
 def study_command(
-    profile, trials, vary, out_dir, seed, keep_runs, reports, scheduler, workers, retries, time_limit, quiet
+    profile,
+    function,
+    by,
+    trials,
+    vary,
+    out_dir,
+    seed,
+    keep_runs,
+    reports,
+    scheduler,
+    workers,
+    retries,
+    time_limit,
+    quiet,
 ):
     """Run PROFILE's simulated job TRIALS times with settings drawn from --vary distributions, seeded and
     reproducible; report the metrics' distribution (mean, sigma, percentiles, failure rate) with plots.
 
     Each trial is trials/<n>/profile.toml (extends PROFILE; run it alone with `weldcell run`). Running
-    the same study again skips finished trials.
+    the same study again skips finished trials. With --function MODULE:FUNCTION (and no PROFILE) each
+    trial calls that function with the drawn values instead (a protocol that is not a whole job).
     """
     from weldcell.sdk.scale.progress import TaskProgress
     from weldcell.sdk.scale.study import run_study
 
-    if not profile.is_file():
+    if profile is not None and not profile.is_file():
         raise UsageError(
             f"profile not found: {profile}", "give a simulation profile, e.g. profiles/*-sim.toml"
         )
@@ -154,10 +175,12 @@ def study_command(
         keep_runs=keep_runs,
         reports=reports,
         progress=TaskProgress(quiet),
+        function=function,
+        by=by,
     )
     c = study["counts"]
     click.echo(
-        f"study {profile.name}: {c['ok']} ok, {c['failed']} failed (failure rate "
+        f"study {profile.name if profile else function}: {c['ok']} ok, {c['failed']} failed (failure rate "
         f"{study['failure_rate'] * 100:.1f} %), {c['lost']} lost, of {c['trials']} trials"
     )
     for k, st in list(study["statistics"].items())[:12]:
@@ -166,6 +189,11 @@ def study_command(
                 f"  {k:<36} mean {st['mean']:.6g}  sigma {st['std']:.6g}  p5 {st['p5']:.6g}  "
                 f"p50 {st['p50']:.6g}  p95 {st['p95']:.6g}  (n={st['n']})"
             )
+    for value, g in (study.get("groups") or {}).items():
+        click.echo(f"  {by} = {value}: {g['counts']['ok']} ok, {g['counts']['failed']} failed")
+        for k, st in list(g["statistics"].items())[:12]:
+            if st.get("n"):
+                click.echo(f"    {k:<34} mean {st['mean']:.6g}  sigma {st['std']:.6g}  p50 {st['p50']:.6g}")
     click.echo(f"report: {Path(out_dir).resolve()}/index.html")
     if c["lost"] or c["pending"]:
         raise JobError(

@@ -49,6 +49,9 @@ class ClusterOptions(Settings):
         (), description="plugin modules registered in every worker besides the installed entry points"
     )
     connect_timeout: float = Field(10.0, gt=0, description="seconds to wait for an existing scheduler")
+    python_path: tuple[str, ...] = Field(
+        (), description="folders put on every worker's sys.path (a study's --function module is found there)"
+    )
 
     def scheduler_address(self) -> str | None:
         """The scheduler to use: the option, else ``$DASK_SCHEDULER_ADDRESS``, else None (local)."""
@@ -74,6 +77,15 @@ def register_plugin_modules(modules: Sequence[str]) -> None:
     for name in modules:
         if name not in pm.plugin_names():
             pm.register(importlib.import_module(name), name=name)
+
+
+def add_python_path(folders: Sequence[str]) -> None:
+    """Put ``folders`` at the front of this process's ``sys.path`` (idempotent)."""
+    import sys
+
+    for f in reversed(tuple(folders)):
+        if f not in sys.path:
+            sys.path.insert(0, f)
 
 
 def environment(plugin_modules: Sequence[str] = ()) -> dict[str, Any]:
@@ -216,6 +228,7 @@ def open_runner(options: ClusterOptions, check: bool = True) -> Iterator[InProce
     worker lacks weldcell or a plugin (naming the worker and what it lacks).
     """
     if options.workers == 0 and options.scheduler is None:  # --workers 0 wins over $DASK_SCHEDULER_ADDRESS
+        add_python_path(options.python_path)
         register_plugin_modules(options.plugin_modules)
         yield InProcessRunner()
         return
@@ -243,11 +256,11 @@ def open_runner(options: ClusterOptions, check: bool = True) -> Iterator[InProce
             cluster = stack.enter_context(_local_cluster(options))
             client = stack.enter_context(Client(cluster))
             description = f"local cluster ({len(cluster.workers)} worker processes)"
-        if options.plugin_modules:
+        if options.plugin_modules or options.python_path:
             from weldcell.sdk.scale._dask_plugins import PluginModules
 
             register_plugin_modules(options.plugin_modules)
-            client.register_plugin(PluginModules(options.plugin_modules))
+            client.register_plugin(PluginModules(options.plugin_modules, options.python_path))
         if check:
             check_workers(client, options.plugin_modules)
         yield DaskRunner(client, description)

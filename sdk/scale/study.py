@@ -11,6 +11,10 @@ Distributions (arguments may carry units; values are drawn and written in SI)::
     KEY=uniform(a, b)        e.g. job.settings.worker.placement_offset=uniform(5 mm, 25 mm)
     KEY=normal(mu, sigma)    e.g. devices.camera.settings.noise_scale=normal(1, 0.1)
     KEY=choice(v1, v2, …)    e.g. devices.robot.settings.model=choice(ur5, ur10e)
+    KEY=cycle(v1, v2, …)     trial i takes v[i mod k] (the rows of a table; ``by=KEY`` groups statistics)
+
+With ``function="MODULE:FUNCTION"`` instead of a profile, each trial calls that trial function with the
+drawn values (plain keys): a protocol that is not a whole job (:mod:`~weldcell.sdk.scale.trial_function`).
 
 OUT_DIR: ``study.json`` (weldcell/study@1: trials, statistics, failure rate), ``trials.csv``,
 ``statistics.csv``, ``index.html``, ``trials/<i>/`` (profile.toml, trial.json, the run folder).
@@ -18,12 +22,14 @@ OUT_DIR: ``study.json`` (weldcell/study@1: trials, statistics, failure rate), ``
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import re
 import shutil
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -38,8 +44,9 @@ from weldcell.sdk.units import SI, UNITS, parse_quantity
 
 STUDY_SCHEMA = "weldcell/study@1"
 TRIAL_SCHEMA = "weldcell/study-trial@1"
-KINDS = ("uniform", "normal", "choice")
-_VARY = re.compile(r"^\s*([A-Za-z_][\w-]*(?:\.[A-Za-z_][\w-]*)+)\s*=\s*([a-z]+)\s*\((.*)\)\s*$")
+KINDS = ("uniform", "normal", "choice", "cycle")
+_VARY = re.compile(r"^\s*([A-Za-z_][\w-]*(?:\.[A-Za-z_][\w-]*)*)\s*=\s*([a-z]+)\s*\((.*)\)\s*$")
+_FUNCTION = re.compile(r"^[A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*$")
 _RESERVED = {("extends",), ("schema",), ("cell", "seed")}
 _KEEP = ("result.json", "summary.txt", "report.md")
 
@@ -75,7 +82,9 @@ class Distribution:
     unit: str | None
     text: str
 
-    def draw(self, rng: np.random.Generator) -> Any:
+    def draw(self, rng: np.random.Generator, trial: int = 0) -> Any:
+        if self.kind == "cycle":  # trial i takes value i mod k: equal rows of a table, no draw
+            return self.params[trial % len(self.params)]
         if self.kind == "uniform":
             return float(rng.uniform(self.params[0], self.params[1]))
         if self.kind == "normal":
@@ -87,7 +96,7 @@ def parse_vary(text: str) -> tuple[str, Distribution]:
     """``"KEY=kind(args)"`` → (key, :class:`Distribution`); a clear :class:`UsageError` otherwise."""
     m = _VARY.match(text)
     fix = (
-        "write KEY=uniform(a,b), KEY=normal(mu,sigma) or KEY=choice(v1,v2,...), e.g. "
+        "write KEY=uniform(a,b), KEY=normal(mu,sigma), KEY=choice(v1,v2,...) or KEY=cycle(v1,v2,...), e.g. "
         "job.settings.worker.placement_offset='uniform(5 mm, 25 mm)'"
     )
     if not m:
@@ -108,9 +117,9 @@ def parse_vary(text: str) -> tuple[str, Distribution]:
         )
     unit = units.pop() if units else None
     values = tuple(v for v, _ in args)
-    if kind == "choice":
+    if kind in ("choice", "cycle"):
         if not values:
-            raise UsageError(f"--vary {key}: choice() needs at least one value", fix)
+            raise UsageError(f"--vary {key}: {kind}() needs at least one value", fix)
         return key, Distribution(kind, values, unit, text)
     if len(values) != 2 or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
         raise UsageError(f"--vary {key}: {kind}() takes two numbers, got {body!r}", fix)
@@ -127,10 +136,10 @@ def parse_vary(text: str) -> tuple[str, Distribution]:
 def draw_trials(seed: int, n: int, vary: dict[str, Distribution]) -> list[tuple[int, dict[str, Any]]]:
     """``(cell seed, {key: value})`` of trials 0..n-1; trial i depends only on ``seed`` and ``i``."""
     out = []
-    for child in np.random.SeedSequence(seed).spawn(n):
+    for i, child in enumerate(np.random.SeedSequence(seed).spawn(n)):
         cell_seed = int(child.generate_state(1, dtype=np.uint32)[0])
         rng = np.random.default_rng(child)
-        out.append((cell_seed, {k: d.draw(rng) for k, d in vary.items()}))
+        out.append((cell_seed, {k: d.draw(rng, i) for k, d in vary.items()}))
     return out
 
 
@@ -181,6 +190,8 @@ class TrialTask:
     time_limit: float | None = None
     hard_limit: bool = True
     keep_runs: bool = False
+    function: str | None = None
+    """``MODULE:FUNCTION`` of a trial function (then ``profile`` is empty): see ``trial_function``."""
 
 
 def _valid_trial(target: Path, task: TrialTask) -> dict[str, Any] | None:
@@ -200,9 +211,6 @@ def run_trial(task: TrialTask) -> dict[str, Any]:
 
     A job that fails is a finished trial (status ``failed`` with its error): it counts in the failure
     rate. A trial whose worker died or ran out of time is retried, then reported lost."""
-    from weldcell.sdk.jobs import run_job
-    from weldcell.sdk.plugins import get_plugin_manager
-
     out = Path(task.out_dir)
     name = f"{task.trial:05d}"
     target, work = out / "trials" / name, out / tasks.WORK / f"trial-{name}"
@@ -222,6 +230,37 @@ def run_trial(task: TrialTask) -> dict[str, Any]:
         scratch = attempt.start()
     except tasks.GiveUp as e:
         return {**rec, "status": "lost", "error": {"type": "TaskLost", "message": str(e), "line": str(e)}}
+    if task.function is not None:
+        _run_function(task, scratch, attempt, rec)
+    else:
+        _run_profile(task, scratch, attempt, rec)
+    rec["outputs"] = tasks.output_checksums(scratch, skip=("trial.json", "log.txt"))
+    artifacts.write_json(scratch / "trial.json", rec)
+    attempt.end(rec["status"])
+    if not tasks.publish(scratch, target):
+        return json.loads((target / "trial.json").read_text(encoding="utf-8"))
+    return rec
+
+
+def _run_function(task: TrialTask, scratch: Path, attempt: tasks.Attempt, rec: dict[str, Any]) -> None:
+    from weldcell.sdk.scale import trial_function
+
+    rec["function"] = task.function
+    try:
+        trial_function.resolve(task.function)  # imported before the time limit starts
+    except UsageError:
+        pass  # call() records it as the trial's error
+    attempt.arm()
+    t0 = time.perf_counter()
+    rec.update(trial_function.call(task.function, task.values, task.seed, task.trial, scratch / "log.txt"))
+    rec["seconds"] = round(time.perf_counter() - t0, 4)
+    rec["run"] = None
+
+
+def _run_profile(task: TrialTask, scratch: Path, attempt: tasks.Attempt, rec: dict[str, Any]) -> None:
+    from weldcell.sdk.jobs import run_job
+    from weldcell.sdk.plugins import get_plugin_manager
+
     profile = scratch / "profile.toml"
     artifacts.write_text(profile, task.profile)
     _ = get_plugin_manager().registry  # plugins loaded before the time limit starts: it limits the job only
@@ -240,12 +279,6 @@ def run_trial(task: TrialTask) -> dict[str, Any]:
             if f.name not in _KEEP:
                 shutil.rmtree(f) if f.is_dir() else f.unlink()
     rec["run"] = str(runs[0].relative_to(scratch)) if runs else None
-    rec["outputs"] = tasks.output_checksums(scratch, skip=("trial.json", "log.txt"))
-    artifacts.write_json(scratch / "trial.json", rec)
-    attempt.end(rec["status"])
-    if not tasks.publish(scratch, target):
-        return json.loads((target / "trial.json").read_text(encoding="utf-8"))
-    return rec
 
 
 # ------------------------------------------------------------------------------------------------ client side
@@ -274,9 +307,17 @@ def check_profile(base: Path, text: str, pm: Any) -> str:
     return loaded.profile.job.name
 
 
-def summarize(trials: list[dict[str, Any]]) -> dict[str, Any]:
-    """Statistics of every metric over the ok trials, and the failure rate over finished trials."""
+def summarize(trials: list[dict[str, Any]], by: str | None = None) -> dict[str, Any]:
+    """Statistics of every metric over the ok trials, and the failure rate over finished trials; with
+    ``by`` (a varied key) also ``"groups"``: the same per value of that key (the rows of a table)."""
     from weldcell.sdk.scale.report import statistics
+
+    if by is not None:
+        values = list(dict.fromkeys(str((t.get("values") or {}).get(by)) for t in trials))
+        groups = {
+            v: summarize([t for t in trials if str((t.get("values") or {}).get(by)) == v]) for v in values
+        }
+        return {**summarize(trials), "by": by, "groups": groups}
 
     ok = [t for t in trials if t["status"] == "ok"]
     finished = [t for t in trials if t["status"] in ("ok", "failed")]
@@ -295,8 +336,24 @@ def summarize(trials: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def _prepare_function(function: str, parsed: dict[str, Distribution], seed: int, trials: int):
+    """Function mode: (draws, per-trial fingerprint texts, job name, source hash, its search root)."""
+    from weldcell.sdk.scale import trial_function
+
+    if not _FUNCTION.match(function):
+        raise UsageError(f"--function {function!r} is not MODULE:FUNCTION", "e.g. mypkg.protocols:trial")
+    trial_function.resolve(function)
+    draws = draw_trials(seed, trials, parsed)
+    texts = [
+        json.dumps({"function": function, "trial": i, "seed": s, "values": v}, sort_keys=True)
+        for i, (s, v) in enumerate(draws)
+    ]
+    root = trial_function.search_root(function)
+    return draws, texts, function, trial_function.fingerprint(function), (root,) if root else ()
+
+
 def run_study(
-    profile: Path,
+    profile: Path | None,
     trials: int,
     vary: list[str],
     out_dir: Path,
@@ -305,27 +362,45 @@ def run_study(
     keep_runs: bool = False,
     reports: bool = False,
     progress: Any = None,
+    function: str | None = None,
+    by: str | None = None,
 ) -> dict[str, Any]:
-    """Run ``trials`` seeded trials of ``profile``'s simulated job; write OUT_DIR; return ``study.json``."""
+    """Run ``trials`` seeded trials of ``profile``'s simulated job, or of the trial ``function``
+    (``MODULE:FUNCTION``, see :mod:`~weldcell.sdk.scale.trial_function`); write OUT_DIR; return
+    ``study.json``. ``by``: a varied key whose values group the statistics (``study["groups"]``)."""
     from weldcell.sdk.plugins import get_plugin_manager
     from weldcell.sdk.profile import load_profile
     from weldcell.sdk.scale.report import write_study_report
 
     if trials < 1:
         raise UsageError(f"--trials {trials}: at least one trial", "give --trials N with N >= 1")
+    if (profile is None) == (function is None):
+        raise UsageError(
+            "a study runs a PROFILE's job or a --function, one of the two",
+            "give a simulation profile, or --function MODULE:FUNCTION without a profile",
+        )
     parsed = dict(parse_vary(v) for v in vary)
-    base = Path(profile).resolve()
-    files = load_profile(base).files
-    draws = draw_trials(seed, trials, parsed)
-    texts = [trial_profile(base, i, s, v, parsed, reports) for i, (s, v) in enumerate(draws)]
-    job = check_profile(base, texts[0], get_plugin_manager())
-    base_sha = tasks.sha256_path(base) + "".join(artifacts.sha256_file(f) for f in files)
+    if by is not None and by not in parsed:
+        raise UsageError(f"--by {by}: not a varied key", f"give one of: {', '.join(parsed) or '(none)'}")
+    roots: tuple[str, ...] = ()
+    base: Path | None = None
+    if function is not None:
+        draws, texts, job, base_sha, roots = _prepare_function(function, parsed, seed, trials)
+        options = options.model_copy(update={"python_path": (*options.python_path, *roots)})
+    else:
+        base = Path(profile).resolve()
+        files = load_profile(base).files
+        draws = draw_trials(seed, trials, parsed)
+        texts = [trial_profile(base, i, s, v, parsed, reports) for i, (s, v) in enumerate(draws)]
+        job = check_profile(base, texts[0], get_plugin_manager())
+        base_sha = tasks.sha256_path(base) + "".join(artifacts.sha256_file(f) for f in files)
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     run_id = f"{datetime.now(UTC).strftime('%Y%m%d%H%M%S')}-{np.random.default_rng().integers(1 << 24):06x}"
     study: dict[str, Any] = {
         "schema": STUDY_SCHEMA,
-        "profile": str(base),
+        "profile": str(base) if base is not None else None,
+        "function": function,
         "job": job,
         "seed": seed,
         "trials_requested": trials,
@@ -339,12 +414,16 @@ def run_study(
     }
     with open_runner(options) as runner:
         study["runner"] = runner.description
+        if function is not None and not runner.in_process:
+            from weldcell.sdk.scale import trial_function
+
+            trial_function.check_workers(runner.client, function, options.python_path)
         batch = [
             TrialTask(
                 i,
                 s,
                 v,
-                texts[i],
+                texts[i] if function is None else "",
                 str(out_dir),
                 hashlib.sha256((texts[i] + base_sha).encode()).hexdigest()[:16],
                 run_id,
@@ -352,6 +431,7 @@ def run_study(
                 options.time_limit,
                 not runner.in_process,
                 keep_runs,
+                function,
             )
             for i, (s, v) in enumerate(draws)
         ]
@@ -388,7 +468,24 @@ def run_study(
         finally:
             if progress is not None:
                 progress.stop()
-            study.update(summarize(list(study["trials"].values())), finished=datetime.now(UTC).isoformat())
+            study.update(
+                summarize(list(study["trials"].values()), by), finished=datetime.now(UTC).isoformat()
+            )
             artifacts.write_json(out_dir / "study.json", study)
             write_study_report(out_dir, study)
     return study
+
+
+@contextlib.contextmanager
+def shared_cluster(options: ClusterOptions) -> Iterator[ClusterOptions]:
+    """Options under which several studies share one cluster (e.g. one study per row of a table): when
+    ``options`` ask for an embedded ``LocalCluster`` it is started once here and its address handed to
+    each study; an existing scheduler or ``workers=0`` is passed on unchanged."""
+    if options.scheduler_address() is not None or options.workers == 0:
+        yield options
+        return
+    from weldcell.sdk.scale.cluster import _local_cluster, require_dask
+
+    require_dask()
+    with _local_cluster(options) as cluster:
+        yield options.model_copy(update={"scheduler": cluster.scheduler_address, "workers": None})

@@ -88,3 +88,10 @@ def weldcell_register_jobs(register) -> None:
             name="probe-job", kind="job", summary="test job", settings=ProbeJobSettings, run=run_probe_job
         )
     )
+
+
+def probe_trial(values: dict, seed: int, trial: int) -> dict:
+    """A study trial function (``weldcell study --function scale_out.probe_plugin:probe_trial``)."""
+    if values.get("row") == "bad":
+        raise DataError("row 'bad' asked to fail", "use another row")
+    return {"value": float(values.get("x", 0.0)) * 1000, "trial": trial}

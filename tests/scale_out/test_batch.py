@@ -1,6 +1,6 @@
 """``weldcell batch`` on a real two-worker LocalCluster over loopback TCP: mixed good and bad inputs with
-results identical to the command run one input at a time, a worker killed mid-batch, a task past its
-time limit, and resume after an interruption."""
+results identical to the command run one input at a time, and resume after an interruption (a worker
+killed mid-batch and a task past its time limit: test_worker_faults.py)."""
 
 from __future__ import annotations
 
@@ -48,8 +48,7 @@ def test_mixed_good_and_bad_inputs_match_the_command_run_one_at_a_time(cluster, 
 
     clouds = tmp_path / "clouds"
     clouds.mkdir()
-    for seed in (1, 2):
-        write_cloud(clouds / f"groove{seed}.ply", groove_cloud(10_000, seed=seed))
+    write_cloud(clouds / "groove1.ply", groove_cloud(10_000, seed=1))  # one seam run per good input: ~2 s
     (clouds / "cut.ply").write_text("ply\nformat ascii 1.0\nelement vertex 10\n")  # header cut short
     (clouds / "notes.md").write_text("not a cloud: the folder expands to *.ply and *.pcd only")
     out = tmp_path / "out"
@@ -57,19 +56,19 @@ def test_mixed_good_and_bad_inputs_match_the_command_run_one_at_a_time(cluster, 
     summary = run_batch("seam", [str(clouds), str(tmp_path / "missing.ply")], out, options(cluster))
 
     items = _by_name(summary)
-    assert set(items) == {"groove1", "groove2", "cut", "missing"}
-    assert summary.counts["ok"] == 2 and summary.counts["failed"] == 2
+    assert set(items) == {"groove1", "cut", "missing"}
+    assert summary.counts["ok"] == 1 and summary.counts["failed"] == 2
     assert "end_header" in items["cut"]["error"]["line"] and items["cut"]["error"]["exit_code"] == 2
     assert "not found" in items["missing"]["error"]["line"]
     index = json.loads((out / "batch.json").read_text())
     assert index["schema"] == "weldcell/batch@1" and index["counts"]["failed"] == 2
     csv = (out / "summary.csv").read_text()
-    assert csv.count("\n") == 5 and "seams_found" in csv.splitlines()[0]
+    assert csv.count("\n") == 4 and "seams_found" in csv.splitlines()[0]
     page = (out / "index.html").read_text()
     assert "end_header" in page and "<img" in page  # failures with their error line, metric plots
     assert (out / "failed" / items["cut"]["key"] / "batch-result.json").is_file()
 
-    for name in ("groove1", "groove2"):  # the same as `weldcell seam` one input at a time
+    for name in ("groove1",):  # the same as `weldcell seam` one input at a time
         alone = tmp_path / f"{name}.json"
         res = CliRunner().invoke(main, ["seam", str(clouds / f"{name}.ply"), "-o", str(alone)])
         assert res.exit_code == 0, res.output
@@ -80,48 +79,6 @@ def test_mixed_good_and_bad_inputs_match_the_command_run_one_at_a_time(cluster, 
             k: v for k, v in b["metrics"].items() if k not in TIMING_KEYS
         }
         assert items[name]["metrics"]["seams_found"] == len(a["seams"])
-
-
-def test_a_killed_worker_is_recovered_and_nothing_is_lost_or_run_twice(cluster, plugins, tmp_path):
-    texts = {f"ok{i}": f"ok {i}" for i in range(5)} | {"once": "kill-once", "bad": "bad"}
-    files = _probe_inputs(tmp_path / "in", texts)
-    out = tmp_path / "out"
-
-    summary = run_batch("probe", [str(tmp_path / "in")], out, options(cluster, retries=1))
-
-    items = _by_name(summary)
-    assert summary.counts == {**summary.counts, "inputs": 7, "ok": 6, "failed": 1}
-    for i in range(5):
-        assert items[f"ok{i}"]["metrics"]["value"] == i and _runs(files[f"ok{i}"]) == 1
-    # its worker process died (SIGKILL) in the first attempt; the second, on a live worker, finished
-    assert items["once"]["status"] == "ok" and items["once"]["attempts"] == 2 and _runs(files["once"]) == 2
-    assert items["once"]["metrics"]["value"] == 7
-    work = out / ".work" / items["once"]["key"]  # the lost attempt's scratch folder is tidied away
-    assert (work / "attempts.jsonl").is_file() and not [d for d in work.iterdir() if d.is_dir()]
-    # the command's own error is not retried (it would fail again) and does not stop the others
-    assert items["bad"]["error"]["type"] == "DataError" and _runs(files["bad"]) == 1
-    results = sorted(p.name for p in (out / "results").iterdir())
-    assert results == sorted(items[n]["key"] for n in items if n != "bad")
-    for key in results:  # each result once, complete, with its checksums
-        manifest = json.loads((out / "results" / key / "batch-result.json").read_text())
-        assert manifest["status"] == "ok" and "probe.json" in manifest["outputs"]
-    assert sorted(p.name for p in (out / "failed").iterdir()) == [items["bad"]["key"]]
-
-
-def test_a_task_over_its_time_limit_is_stopped_and_recorded(cluster, plugins, tmp_path):
-    files = _probe_inputs(tmp_path / "in", {"slow": "sleep", "fast": "ok 3"})
-    summary = run_batch(
-        "probe",
-        [str(f) for f in files.values()],
-        tmp_path / "out",
-        options(cluster, retries=0, time_limit=2.5),
-    )
-    items = _by_name(summary)
-    assert items["fast"]["status"] == "ok"
-    # stopped at its limit, not retried (retries=0), recorded failed with the reason
-    assert items["slow"]["status"] == "failed" and "time limit of 2.5 s" in items["slow"]["error"]["line"]
-    assert _runs(files["slow"]) == 1
-    assert "--time-limit" in items["slow"]["error"]["fix"]
 
 
 class _InterruptAfter:

@@ -83,3 +83,33 @@ def test_study_command_prints_the_distribution(cli, tmp_path):
     assert "3 ok, 0 failed (failure rate 0.0 %)" in res.output
     assert "offset_mm" in res.output and "mean 1." in res.output
     assert MODULE  # the probe job comes from the test plugin
+
+
+def test_study_command_runs_a_trial_function_by_rows(cli, tmp_path):
+    res = cli(
+        "study",
+        "--function",
+        f"{MODULE}:probe_trial",
+        "--trials",
+        3,
+        "--vary",
+        "row=cycle(a, bad, c)",
+        "--vary",
+        "x=uniform(1 mm, 2 mm)",
+        "--by",
+        "row",
+        "-o",
+        tmp_path / "out",
+        "--workers",
+        "0",
+        "-q",
+    )
+    assert res.exit_code == 0, res.output
+    assert f"study {MODULE}:probe_trial: 2 ok, 1 failed (failure rate 33.3 %)" in res.output
+    assert "row = a: 1 ok, 0 failed" in res.output and "row = bad: 0 ok, 1 failed" in res.output
+    study = json.loads((tmp_path / "out" / "study.json").read_text())
+    assert study["function"] == f"{MODULE}:probe_trial" and study["profile"] is None
+    assert 1 < study["groups"]["c"]["statistics"]["value"]["mean"] < 2  # x drawn in metres, x 1000
+
+    res = cli("study", "--trials", 2, "-o", tmp_path / "o2", "--workers", "0", "-q")
+    assert res.exit_code == 2 and "one of the two" in res.output

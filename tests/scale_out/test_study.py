@@ -113,3 +113,62 @@ def test_a_study_refuses_a_hardware_profile(plugins, tmp_path):
     hw.write_text(PROFILE + '[devices.robot]\nplugin = "robot.ur-rtde"\nsettings = { host = "127.0.0.1" }\n')
     with pytest.raises(UsageError, match="simulated cells only"):
         run_study(hw, 2, [], tmp_path / "o", options(None))
+
+
+PROTOCOL = """
+import numpy as np
+from weldcell.sdk.errors import DataError
+
+
+def trial(values, seed, trial):
+    if values["row"] == "bad":
+        raise DataError("row 'bad' asked to fail", "use another row")
+    if values["row"] == "bug":
+        raise ZeroDivisionError("a bug in the protocol")
+    noise = float(np.random.default_rng(seed).normal())
+    return {"error_mm": values["x"] * 1000 + noise, "trial": trial, "parts": {"n": 2}}
+"""
+
+
+def test_a_trial_function_study_reproduces_and_groups_its_rows(cluster, plugins, tmp_path, monkeypatch):
+    """``--function``: a protocol that is not a whole job. Its module lies in a folder only this process
+    has on sys.path: the workers get it from the study; rows by cycle(), statistics per row (--by)."""
+    import sys
+
+    (tmp_path / "protos").mkdir()
+    (tmp_path / "protos" / "study_protocol_probe.py").write_text(PROTOCOL)
+    monkeypatch.setattr(sys, "path", [str(tmp_path / "protos"), *sys.path])
+    vary = ["row=cycle(a, b, bad, bug)", "x=uniform(1 mm, 2 mm)"]
+    fn = "study_protocol_probe:trial"
+    a = run_study(None, 4, vary, tmp_path / "a", options(cluster), seed=7, function=fn, by="row")
+    b = run_study(None, 4, vary, tmp_path / "b", options(None), seed=7, function=fn, by="row")
+
+    assert _trials(a) == _trials(b) and a["statistics"] == b["statistics"]
+    rows = [t["values"]["row"] for t in sorted(a["trials"].values(), key=lambda t: t["trial"])]
+    assert rows == ["a", "b", "bad", "bug"]  # trial i takes value i mod 4
+    assert draw_trials(7, 6, dict(parse_vary(v) for v in vary))[5][1]["row"] == "b"
+    assert list(a["groups"]) == ["a", "b", "bad", "bug"]
+    assert a["groups"]["a"]["counts"]["ok"] == 1 and a["groups"]["a"]["statistics"]["parts.n"]["mean"] == 2
+    assert a["groups"]["bad"]["failure_rate"] == 1 and a["failure_rate"] == 0.5
+    bad = [t for t in a["trials"].values() if t["values"]["row"] == "bad"]
+    assert all(t["error"]["type"] == "DataError" and t["error"]["fix"] == "use another row" for t in bad)
+    bug = next(t for t in a["trials"].values() if t["values"]["row"] == "bug")
+    assert bug["status"] == "failed" and bug["error"]["type"] == "ZeroDivisionError"
+    assert "Traceback" in (tmp_path / "a" / "trials" / f"{bug['trial']:05d}" / "log.txt").read_text()
+    for t in a["trials"].values():
+        if t["status"] == "ok":
+            assert t["figures"]["trial"] == t["trial"]
+            assert 1 < t["figures"]["error_mm"] - np.random.default_rng(t["seed"]).normal() < 2
+    groups_csv = (tmp_path / "a" / "groups.csv").read_text()
+    assert (
+        groups_csv.startswith("row,metric,n,mean")
+        and "a,error_mm,1," in groups_csv
+        and "b,error_mm,1," in groups_csv
+    )
+
+    with pytest.raises(UsageError, match="cannot import"):
+        run_study(None, 2, [], tmp_path / "c", options(None), function="no_such_module_xyz:trial")
+    with pytest.raises(UsageError, match="one of the two"):
+        run_study(None, 2, [], tmp_path / "c", options(None))
+    with pytest.raises(UsageError, match="not a varied key"):
+        run_study(None, 2, vary, tmp_path / "c", options(None), function=fn, by="y")
