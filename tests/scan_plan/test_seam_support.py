@@ -113,3 +113,31 @@ def test_sampling_spacings_tell_a_line_scan_from_an_area_scan():
     area = np.column_stack([u, v, rng.normal(0, 2e-4, u.size)]) + rng.normal(0, 2e-4, (u.size, 3))
     fine, coarse = sampling_spacings(area)
     assert coarse < 1.5 * fine
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_lone_sparse_groove_plate_is_not_taken_for_a_table(seed, tmp_path):
+    """``weldcell seam`` on a cropped V-groove butt joint with no table (3,600 points, ~2 mm apart): its
+    top faces can pass for a support plane; when that reading leaves no seam, the stage reads the cloud
+    without it and finds the groove root along the 300 mm joint, as it did before support planes."""
+    import json
+    import sys
+    from pathlib import Path
+
+    from click.testing import CliRunner
+    from weldcell.sdk.cli import main
+    from weldcell.sdk.cloud import write_cloud
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from scan_plan.test_scan_plan_cli import SEAM_X, groove_cloud
+
+    f = tmp_path / "groove.ply"
+    write_cloud(f, groove_cloud(10_000, seed=seed))
+    res = CliRunner().invoke(main, ["seam", str(f), "-o", str(tmp_path / "path.json")])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "path.json").read_text())
+    seams = doc["seams"]
+    assert [s["joint"] for s in seams] == ["groove"], res.output
+    pts = np.array(seams[0]["points"])
+    assert np.all(np.abs(pts[:, 0] - SEAM_X) < 0.003) and np.all(pts[:, 2] < 0.006)  # root, not rim
+    assert np.ptp(pts[:, 1]) > 0.25

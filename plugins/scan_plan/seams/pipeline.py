@@ -299,6 +299,21 @@ def extract_seams(
     with np.errstate(invalid="ignore"):
         edge = (score >= s.t) & (I >= s.min_intensity)
     N, plane = _normals(P, tree, normals, s, table, fine, coarse)
+    labels, seams, support = _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints)
+    if not seams and plane is not None and normals is None and s.up is None:
+        # The plane hypothesis left no seam: a lone plate's face can pass for a table (its groove then
+        # looks like a part behind it, and every normal flips). Without the hypothesis the cloud is read
+        # as before support planes existed; a real table that hides every seam loses nothing by this.
+        N, plane = _normals(P, tree, normals, s, table, fine, coarse, find_support=False)
+        labels, seams, support = _seams_on(P, N, tree, edge, None, s, r, r_fine, viewpoints)
+    params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
+    params.update(spacing=(fine, coarse), support=None if support is None else support.normal.tolist())
+    return SeamExtraction(edge, score, I, labels, seams, r, params)
+
+
+def _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints):
+    """Labels, seams and the support plane in use, given oriented normals ``N`` and the found ``plane``
+    (its contact lines are dropped unless ``s.contact_seams``)."""
     support = None if s.contact_seams or plane is None or not plane.holds_part else plane
     labels = np.zeros(len(P), dtype=np.int8)
     cand = np.flatnonzero(edge)
@@ -322,9 +337,7 @@ def extract_seams(
         seams = chain_seams(P, N, tree, cand[keep], lab[keep], appr[keep], cfg)
         if support is not None:
             seams = drop_contact(P, tree, seams, support, cfg.side_radius, cfg.min_length)
-    params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
-    params.update(spacing=(fine, coarse), support=None if support is None else support.normal.tolist())
-    return SeamExtraction(edge, score, I, labels, seams, r, params)
+    return labels, seams, support
 
 
 def _wide_enough(k_max: int, reach: float, fine: float, coarse: float) -> int:
@@ -341,10 +354,12 @@ def _normals(
     table: NeighbourTable | None,
     fine: float,
     coarse: float,
+    find_support: bool = True,
 ) -> tuple[np.ndarray, SupportPlane | None]:
     """Oriented PCA normals and the plane the part rests on (:func:`~.support.support_plane`, None when
-    the scan holds none). Normals are oriented along ``normals`` when given, towards ``s.up`` when set,
-    else towards the sensor side found from the scan itself (:func:`~.orientation.scan_side_normals`).
+    the scan holds none or ``find_support`` is False). Normals are oriented along ``normals`` when
+    given, towards ``s.up`` when set, else towards the sensor side found from the scan itself
+    (:func:`~.orientation.scan_side_normals`).
     The PCA neighbourhood holds 10 points, or as many as reach ``s.coarse_reach`` x the coarse spacing
     (an anisotropic scan); the RANSAC band of the support comes from the cloud's noise
     (:func:`~weldcell.plugins.scan_plan.cloud_numerics.noise_level` within that reach)."""
@@ -365,7 +380,7 @@ def _normals(
         _, idx = tree.query(P, k=k, workers=-1)
         N = point_normals(P, tree, k, None, None, None, idx=idx)
     noise = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
-    plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008))
+    plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008)) if find_support else None
     if idx is not None:
         N = scan_side_normals(P, N, idx, plane)
     return N, plane
