@@ -95,11 +95,14 @@ def serve_command(map_dir, bind, token_env, seconds) -> None:
     from weldcell.sdk.cli import console
 
     token = token_from_env(token_env)
-    srv = MapServer(map_dir, bind, token=token)
     auth = "token required" if token else "no token (anyone who can reach it may fetch)"
-    console.print(f"serving {map_dir} on {srv.address} ({auth}); Ctrl-C stops", markup=False)
-    srv.start()
+    srv = MapServer(map_dir, bind, token=token)
+    # Everything after the socket is bound sits inside try: a Ctrl-C that lands before the loop (a client
+    # can be served as soon as start() returns) must still stop the thread and close the socket, or the
+    # interpreter's exit waits forever on the ZeroMQ context the serving thread holds.
     try:
+        console.print(f"serving {map_dir} on {srv.address} ({auth}); Ctrl-C stops", markup=False)
+        srv.start()
         t_end = time.monotonic() + seconds if seconds > 0 else None
         while t_end is None or time.monotonic() < t_end:
             time.sleep(0.2)
