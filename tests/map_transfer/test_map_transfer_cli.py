@@ -124,7 +124,21 @@ def test_serve_command_in_its_own_process(tmp_path, small_map, monkeypatch):
         "--bind",
         address,
     ]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    def as_from_a_terminal() -> None:
+        # Ctrl-C reaches a command started from a shell; the pytest worker this test runs in may have
+        # SIGINT ignored or blocked (both are inherited across exec), and a Python started with SIGINT
+        # ignored never raises KeyboardInterrupt. Give the child what a terminal gives it.
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+    proc = subprocess.Popen(
+        cmd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=as_from_a_terminal,  # noqa: PLW1509 - no threads of ours start before exec
+    )
     try:
         with MapClient(address, tmp_path / "op", "tok-42", FetchSettings(timeout=1.0, retries=20)) as c:
             rep = c.fetch()
