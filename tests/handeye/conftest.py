@@ -39,3 +39,20 @@ def extend_profile(tmp_path):
         return p
 
     return write
+
+
+@pytest.fixture
+def cli(weldcell_pm):
+    """``weldcell calibrate hand-eye ARGS...`` through the real command line: (exit code, output with
+    whitespace runs collapsed, since rich wraps lines at the terminal width)."""
+    from click.testing import CliRunner
+    from weldcell.sdk.cli import main
+
+    weldcell_pm.register(handeye_plugin, "handeye", distribution="weldcell")
+    runner = CliRunner()
+
+    def invoke(*args):
+        r = runner.invoke(main, ["calibrate", "hand-eye", *map(str, args)], catch_exceptions=False)
+        return r.exit_code, " ".join(r.output.split())
+
+    return invoke

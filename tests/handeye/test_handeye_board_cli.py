@@ -8,28 +8,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import weldcell.plugins.handeye as handeye_plugin
-from click.testing import CliRunner
 from weldcell.plugins.handeye.result import HandEyeSample
 from weldcell.plugins.handeye.samples_io import write_samples
-from weldcell.sdk.cli import main
 from weldcell.sdk.geometry import T_from_rpy, invert, pose_error
 
 K_TRUE = np.array([[600.0, 0, 322.0], [0, 605.0, 238.0], [0, 0, 1]])
 X_TRUE = T_from_rpy([0.02, -0.03, 1.55], [0.04, -0.06, 0.09])  # T_flange_camera
 SQUARE = 0.03  # m; 9 x 6 squares = 8 x 5 inner corners (one even: no 180 deg ambiguity)
 
-
-@pytest.fixture
-def cli(weldcell_pm):
-    weldcell_pm.register(handeye_plugin, "handeye", distribution="weldcell")
-    runner = CliRunner()
-
-    def invoke(*args):
-        r = runner.invoke(main, ["calibrate", "hand-eye", *map(str, args)], catch_exceptions=False)
-        return r.exit_code, " ".join(r.output.split())
-
-    return invoke
 
 
 def _render(T_cam_board: np.ndarray, size=(640, 480)) -> np.ndarray:

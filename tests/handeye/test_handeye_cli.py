@@ -7,8 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import weldcell.plugins.handeye as handeye_plugin
-from click.testing import CliRunner
 from weldcell.hal.kinematics import get_model
 from weldcell.hal.sim.devices import SimDepthCamera, SimRobot
 from weldcell.hal.sim.flange import flange_for
@@ -16,23 +14,11 @@ from weldcell.hal.sim.world import SimWorld
 from weldcell.plugins.handeye.result import HandEyeSample
 from weldcell.plugins.handeye.samples_io import write_samples
 from weldcell.plugins.handeye.simulation import simulate_cell
-from weldcell.sdk.cli import main
 from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.geometry import T_from_rpy, frame_from_axes, invert, pose_error
 
 T_WORLD_CAMERA = T_from_rpy(np.radians([-89.5, 0.4, 90.3]), [1.452, 0.004, 0.547])
 
-
-@pytest.fixture
-def cli(weldcell_pm):
-    weldcell_pm.register(handeye_plugin, "handeye", distribution="weldcell")
-    runner = CliRunner()
-
-    def invoke(*args):
-        r = runner.invoke(main, ["calibrate", "hand-eye", *map(str, args)], catch_exceptions=False)
-        return r.exit_code, " ".join(r.output.split())  # rich wraps lines at the terminal width
-
-    return invoke
 
 
 @pytest.fixture(scope="module")

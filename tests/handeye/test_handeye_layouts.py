@@ -8,24 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import weldcell.plugins.handeye as handeye_plugin
-from click.testing import CliRunner
-from weldcell.sdk.cli import main
 from weldcell.sdk.geometry import pose_error
 
 SAMPLE = "calib_toolbox/data/2019-06-14-sample"
 
-
-@pytest.fixture
-def cli(weldcell_pm):
-    weldcell_pm.register(handeye_plugin, "handeye", distribution="weldcell")
-    runner = CliRunner()
-
-    def invoke(*args):
-        r = runner.invoke(main, ["calibrate", "hand-eye", *map(str, args)], catch_exceptions=False)
-        return r.exit_code, " ".join(r.output.split())
-
-    return invoke
 
 
 def strict_json(path: Path) -> dict:
