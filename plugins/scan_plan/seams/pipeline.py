@@ -379,8 +379,10 @@ def _normals(
     else:
         _, idx = tree.query(P, k=k, workers=-1)
         N = point_normals(P, tree, k, None, None, None, idx=idx)
-    noise = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
-    plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008)) if find_support else None
+    plane = None
+    if find_support:
+        noise = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
+        plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008))
     if idx is not None:
         N = scan_side_normals(P, N, idx, plane)
     return N, plane
