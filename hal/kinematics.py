@@ -24,6 +24,10 @@ Two geometry families are solved in closed form with up to 8 solutions:
 The family is detected from the geometry, not assumed from the name. Anything else (the 7-DOF Panda)
 is solved numerically by damped least squares (Levenberg-Marquardt damping as in Sugihara 2011) from
 several seeds, with the null space pulled toward ``home``.
+
+Where the code is: the chain, FK, Jacobian, limits, IK dispatch and the model registry here; the closed
+forms in :mod:`weldcell.hal.ik_closed_form`; the numeric solver in :mod:`weldcell.hal.ik_numeric`; move
+durations and straight-line joint paths in :mod:`weldcell.hal.motion_profile`.
 """
 
 from __future__ import annotations
@@ -35,13 +39,31 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
+from weldcell.hal.ik_closed_form import (
+    Screws,
+    classify_chain,
+    closest_on_first,
+    solve_spherical_wrist,
+    solve_three_parallel,
+    wrap_angle,
+)
+from weldcell.hal.ik_numeric import NumericIK
+from weldcell.hal.ik_numeric import pose_residual as _pose_residual
+from weldcell.hal.motion_profile import MotionTimes, trapezoid_position, trapezoid_time
 from weldcell.hal.robot_models import ROBOT_TABLES
 from weldcell.sdk.errors import DataError, SafetyError, UsageError
-from weldcell.sdk.geometry import interpolate_poses, pose_error, rotation_angle
 
 _TWO_PI = 2.0 * math.pi
+
+__all__ = [
+    "MODELS",
+    "DHTable",
+    "RobotModel",
+    "build_model",
+    "get_model",
+    "trapezoid_position",
+    "trapezoid_time",
+]
 
 
 # --------------------------------------------------------------------------------------------------- DH chain
@@ -113,284 +135,9 @@ def _rot_z_batch(theta: np.ndarray) -> np.ndarray:
     return out
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Cross product of two 3-vectors (np.cross is slow for single vectors)."""
-    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
-
-
-def _rot(k: np.ndarray, t: float) -> np.ndarray:
-    """Rodrigues rotation about unit axis ``k`` by ``t``."""
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(t) * K + (1.0 - math.cos(t)) * (K @ K)
-
-
-# ------------------------------------------------------------------------------------ Paden-Kahan subproblems
-def _sp1(k: np.ndarray, p: np.ndarray, q: np.ndarray, eps: float = 1e-9) -> float | None:
-    """Subproblem 1: angle ``t`` with ``rot(k, t) p = q``; None if ``p`` or ``q`` is on ``k``."""
-    pp = p - k * (k @ p)
-    qq = q - k * (k @ q)
-    if np.linalg.norm(pp) < eps or np.linalg.norm(qq) < eps:
-        return None
-    return math.atan2(float(k @ _cross(pp, qq)), float(pp @ qq))
-
-
-def _sp4(h: np.ndarray, k: np.ndarray, p: np.ndarray, d: float, tol: float = 1e-9) -> list[float] | None:
-    """Subproblem 4: angles ``t`` with ``h^T rot(k, t) p = d``: [] if none, None if every ``t`` solves it."""
-    kp = k @ p
-    A = float(h @ p - (h @ k) * kp)
-    B = float(h @ _cross(k, p))
-    C = float((h @ k) * kp)
-    r = math.hypot(A, B)
-    if r < 1e-10:
-        return None if abs(d - C) < 1e-9 else []
-    x = (d - C) / r
-    if abs(x) > 1.0 + tol:
-        return []
-    phi = math.atan2(B, A)
-    dt = math.acos(max(-1.0, min(1.0, x)))
-    return [phi + dt, phi - dt]
-
-
-def _perp(v: np.ndarray, k: np.ndarray) -> np.ndarray:
-    return v - k * (k @ v)
-
-
-def _wrap(a: np.ndarray | float) -> Any:
-    """Angles wrapped to (-pi, pi]."""
-    return -((-np.asarray(a) + math.pi) % _TWO_PI - math.pi)
-
-
-@dataclass(frozen=True, eq=False)
-class _Screws:
-    """Product of exponentials at ``q = 0``: unit axes ``h`` through points ``p``, flange pose ``M``."""
-
-    h: np.ndarray
-    p: np.ndarray
-    M: np.ndarray
-
-
-def _closest_points(
-    p1: np.ndarray, h1: np.ndarray, p2: np.ndarray, h2: np.ndarray
-) -> tuple[np.ndarray, float]:
-    """Midpoint of the closest points of two lines and their distance (parallel lines: point on line 1)."""
-    w = p1 - p2
-    b = float(h1 @ h2)
-    den = 1.0 - b * b
-    if den < 1e-12:
-        return p1, float(np.linalg.norm(_perp(w, h1)))
-    dw1, dw2 = float(h1 @ w), float(h2 @ w)
-    s = (b * dw2 - dw1) / den
-    t = (dw2 - b * dw1) / den
-    c1, c2 = p1 + s * h1, p2 + t * h2
-    return 0.5 * (c1 + c2), float(np.linalg.norm(c1 - c2))
-
-
-def _closest_on_first(p1: np.ndarray, h1: np.ndarray, p2: np.ndarray, h2: np.ndarray) -> np.ndarray:
-    """Point of line 1 closest to line 2 (``p1`` when they are parallel)."""
-    b = float(h1 @ h2)
-    den = 1.0 - b * b
-    if den < 1e-12:
-        return p1
-    w = p1 - p2
-    return p1 + (b * float(h2 @ w) - float(h1 @ w)) / den * h1
-
-
-def _classify(s: _Screws) -> tuple[str, dict[str, np.ndarray]]:
-    """Which closed form fits this chain: ``three-parallel``, ``spherical-wrist`` or ``numeric``."""
-    h, p = s.h, s.p
-    if len(h) != 6:
-        return "numeric", {}
-
-    def par(i: int, j: int) -> bool:
-        return bool(np.linalg.norm(np.cross(h[i], h[j])) < 1e-9)
-
-    if par(1, 2) and par(2, 3):
-        c56, dist = _closest_points(p[4], h[4], p[5], h[5])
-        if dist < 1e-9 and not par(4, 5):
-            return "three-parallel", {"O5": c56}
-    if par(1, 2) and not par(3, 4) and not par(4, 5):
-        c45, d45 = _closest_points(p[3], h[3], p[4], h[4])
-        c56, d56 = _closest_points(p[4], h[4], p[5], h[5])
-        if d45 < 1e-9 and d56 < 1e-9 and np.linalg.norm(c45 - c56) < 1e-9:
-            return "spherical-wrist", {"W": c45}
-    return "numeric", {}
-
-
-def _ik_three_parallel(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndarray) -> list[np.ndarray]:
-    """All closed-form solutions for axes 2 || 3 || 4 and axes 5, 6 intersecting at ``W0`` (UR type).
-
-    Order of the solution: q1 (SP4 on the h2-component of the wrist point), q5 (SP4 on h2 . z6),
-    q6 (SP1), q2 + q3 + q4 (SP1), q3 (law of cosines, SP4), q2 (SP1), q4 by difference.
-    """
-    h, P, M = s.h, s.p, s.M
-    s3, s4 = float(np.sign(h[2] @ h[1])), float(np.sign(h[3] @ h[1]))  # parallel or antiparallel axes
-    R06 = T[:3, :3] @ M[:3, :3].T
-    O5 = T[:3, 3] - R06 @ (M[:3, 3] - W0)
-    a = _perp(P[2] - P[1], h[1])
-    b = _perp(P[3] - P[2], h[1])
-    sols: list[np.ndarray] = []
-    r1 = _sp4(O5 - P[0], h[0], h[1], float(h[1] @ (W0 - P[0])))
-    q1s = [seed[0]] if r1 is None else r1
-    for q1 in q1s:
-        R1 = _rot(h[0], q1)
-        r5 = _sp4(h[1], h[4], h[5], float(h[1] @ (R1.T @ R06 @ h[5])))
-        q5s = [seed[4]] if r5 is None else r5
-        for q5 in q5s:
-            R5 = _rot(h[4], q5)
-            u = _unit_perp(h[1])
-            X = R1.T @ (O5 - P[0]) + P[0]
-            q6 = _sp1(h[5], R06.T @ R1 @ h[1], R5.T @ h[1], eps=1e-7)
-            if q6 is None:  # wrist singularity: axis 6 || axis 4, only q234 +- q6 is fixed
-                q234 = _singular_q234(
-                    h[1],
-                    R1.T @ R06 @ R5.T,
-                    float(np.sign(h[1] @ R5 @ h[5])),
-                    seed[5],
-                    X - P[1],
-                    W0 - P[3],
-                    a,
-                    b,
-                    u,
-                )
-                if q234 is None:
-                    continue
-                q6 = _sp1(h[5], u6 := _unit_perp(h[5]), R5.T @ _rot(h[1], q234).T @ R1.T @ R06 @ u6)
-                if q6 is None:
-                    continue
-            else:
-                R234 = R1.T @ R06 @ _rot(h[5], q6).T @ R5.T
-                q234 = _sp1(h[1], u, R234 @ u)  # = q2 + s3 q3 + s4 q4
-                if q234 is None:
-                    continue
-            Y = X - P[1] - _rot(h[1], q234) @ (W0 - P[3])
-            y = _perp(Y, h[1])
-            r3 = _sp4(a, h[1], b, 0.5 * float(y @ y - a @ a - b @ b), tol=1e-7)
-            q3s = [s3 * seed[2]] if r3 is None else r3  # angles about h2
-            for q3 in q3s:
-                v = a + _rot(h[1], q3) @ b
-                q2 = _sp1(h[1], v, y)
-                if q2 is None:
-                    q2 = float(seed[1])
-                sols.append(np.array([q1, q2, s3 * q3, s4 * (q234 - q2 - q3), q5, q6]))
-    return sols
-
-
-def _singular_q234(
-    h2: np.ndarray,
-    R: np.ndarray,
-    sigma: float,
-    q6_seed: float,
-    x: np.ndarray,
-    w: np.ndarray,
-    a: np.ndarray,
-    b: np.ndarray,
-    u: np.ndarray,
-) -> float | None:
-    """q2 + q3 + q4 at a UR-type wrist singularity (axis 6 parallel to axes 2-4).
-
-    There ``rot(h2, q234 + sigma q6) = R`` fixes only ``psi = q234 + sigma q6``, but q234 also places
-    axis 4 on a circle about the wrist point, which the 2-link arm (a, b) must reach:
-    ``|perp(x - rot(h2, q234) w)|`` in ``[| |a|-|b| |, |a|+|b|]``. Take the q234 implied by the seed's q6
-    when feasible, else the nearest feasible one (SP4 on the interval ends).
-    """
-    psi = _sp1(h2, u, R @ u)
-    if psi is None:
-        return None
-    t_seed = psi - sigma * q6_seed
-    x0, v = _perp(x, h2), _perp(w, h2)
-    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
-    base = float(x0 @ x0 + v @ v)
-    lo, hi = 0.5 * (base - (na + nb) ** 2), 0.5 * (base - (na - nb) ** 2)
-    g = float(x0 @ _rot(h2, t_seed) @ v)
-    if lo - 1e-12 <= g <= hi + 1e-12:
-        return t_seed
-    cands = [t for bound in (lo, hi) for t in (_sp4(x0, h2, v, bound) or [])]
-    if not cands:
-        return None
-    return min(cands, key=lambda t: abs(float(_wrap(t - t_seed))))
-
-
-def _ik_spherical_wrist(s: _Screws, W0: np.ndarray, T: np.ndarray, seed: np.ndarray) -> list[np.ndarray]:
-    """All closed-form solutions for axes 2 || 3 and a spherical wrist centred at ``W0`` (ABB type).
-
-    Position: q1 (SP4), q3 (law of cosines, SP4), q2 (SP1). Orientation: q5 (SP4), q4 (SP1), q6 (SP1).
-    """
-    h, P, M = s.h, s.p, s.M
-    s3 = float(np.sign(h[2] @ h[1]))
-    R06 = T[:3, :3] @ M[:3, :3].T
-    W = T[:3, 3] - R06 @ (M[:3, 3] - W0)
-    sols: list[np.ndarray] = []
-    r1 = _sp4(W - P[0], h[0], h[1], float(h[1] @ (W0 - P[0])))
-    q1s = [seed[0]] if r1 is None else r1
-    a = _perp(P[2] - P[1], h[1])
-    b = _perp(W0 - P[2], h[1])
-    for q1 in q1s:
-        R1 = _rot(h[0], q1)
-        y = _perp(R1.T @ (W - P[0]) + P[0] - P[1], h[1])
-        r3 = _sp4(a, h[1], b, 0.5 * float(y @ y - a @ a - b @ b))
-        q3s = [s3 * seed[2]] if r3 is None else r3  # angles about h2
-        for q3h in q3s:
-            q2 = _sp1(h[1], a + _rot(h[1], q3h) @ b, y)
-            if q2 is None:
-                q2 = float(seed[1])
-            q3 = s3 * q3h
-            Rw = (R1 @ _rot(h[1], q2) @ _rot(h[2], q3)).T @ R06
-            z = Rw @ h[5]
-            r5 = _sp4(h[3], h[4], h[5], float(h[3] @ z))
-            q5s = [seed[4]] if r5 is None else r5
-            for q5 in q5s:
-                R5 = _rot(h[4], q5)
-                q4 = _sp1(h[3], R5 @ h[5], z)
-                if q4 is None:
-                    q4 = float(seed[3])
-                R45 = _rot(h[3], q4) @ R5
-                u = _unit_perp(h[5])
-                q6 = _sp1(h[5], u, R45.T @ Rw @ u)
-                if q6 is None:
-                    continue
-                sols.append(np.array([q1, q2, q3, q4, q5, q6]))
-    return sols
-
-
-def _unit_perp(k: np.ndarray) -> np.ndarray:
-    """A unit vector perpendicular to ``k``."""
-    e = np.eye(3)[int(np.argmin(np.abs(k)))]
-    u = _cross(k, e)
-    return u / np.linalg.norm(u)
-
-
-# ------------------------------------------------------------------------------------------ motion profile
-def trapezoid_time(distance: np.ndarray | float, vmax: np.ndarray | float, amax: np.ndarray | float) -> Any:
-    """Minimum time to travel ``distance`` from rest to rest with speed ``vmax`` and acceleration ``amax``.
-
-    Triangular profile ``2 sqrt(D / a)`` when the top speed is never reached (``D < v^2 / a``),
-    trapezoidal ``D / v + v / a`` otherwise.
-    """
-    D = np.abs(np.asarray(distance, dtype=float))
-    v = np.asarray(vmax, dtype=float)
-    a = np.asarray(amax, dtype=float)
-    return np.where(D < v * v / a, 2.0 * np.sqrt(D / a), D / v + v / a)
-
-
-def trapezoid_position(t: np.ndarray, distance: float, vmax: float, amax: float) -> np.ndarray:
-    """Distance covered at times ``t`` along the rest-to-rest profile of :func:`trapezoid_time`."""
-    t = np.asarray(t, dtype=float)
-    D = abs(float(distance))
-    if D == 0.0:
-        return np.zeros_like(t)
-    v = min(vmax, math.sqrt(D * amax))  # peak speed (triangle when the top speed is not reached)
-    ta = v / amax
-    T = float(trapezoid_time(D, vmax, amax))
-    t = np.clip(t, 0.0, T)
-    acc = 0.5 * amax * t**2
-    cruise = 0.5 * amax * ta**2 + v * (t - ta)
-    dec = D - 0.5 * amax * (T - t) ** 2
-    return np.where(t < ta, acc, np.where(t > T - ta, dec, cruise))
-
-
 # --------------------------------------------------------------------------------------------- the model
 @dataclass(frozen=True, eq=False)
-class RobotModel:
+class RobotModel(NumericIK, MotionTimes):
     """Kinematic model of one robot arm (SI units, base frame at the mounting flange of the base).
 
     ``joint_limits`` (dof, 2) rad, ``joint_speed_limits`` (dof,) rad/s, ``joint_accel_limits`` (dof,) rad/s^2,
@@ -414,7 +161,7 @@ class RobotModel:
     sources: str = ""
     _pre: np.ndarray = field(init=False, repr=False)
     _post: np.ndarray = field(init=False, repr=False)
-    _screws: _Screws = field(init=False, repr=False)
+    _screws: Screws = field(init=False, repr=False)
     ik_method: str = field(init=False)
     _ik_point: np.ndarray | None = field(init=False, repr=False)
     shoulder: np.ndarray = field(init=False, repr=False)
@@ -431,14 +178,14 @@ class RobotModel:
         object.__setattr__(self, "_pre", pre)
         object.__setattr__(self, "_post", post)
         frames, axes_frames = self._chain(np.zeros((1, self.dof)))
-        screws = _Screws(
+        screws = Screws(
             axes_frames[0, :, :3, 2].copy(), axes_frames[0, :, :3, 3].copy(), frames[0, -1].copy()
         )
         object.__setattr__(self, "_screws", screws)
-        method, extra = _classify(screws)
+        method, extra = classify_chain(screws)
         object.__setattr__(self, "ik_method", method)
         object.__setattr__(self, "_ik_point", extra.get("O5", extra.get("W")))
-        shoulder = _closest_on_first(screws.p[0], screws.h[0], screws.p[1], screws.h[1])
+        shoulder = closest_on_first(screws.p[0], screws.h[0], screws.p[1], screws.h[1])
         object.__setattr__(self, "shoulder", shoulder)
         # Triangle inequality along the chain of frame origins (each consecutive pair is rigidly linked):
         # no flange position can be farther from the shoulder than this.
@@ -618,7 +365,7 @@ class RobotModel:
         """Distinct closed-form solutions that reproduce ``T`` within the tolerances (polished if needed)."""
         W0 = self._ik_point
         assert W0 is not None
-        solver = _ik_three_parallel if self.ik_method == "three-parallel" else _ik_spherical_wrist
+        solver = solve_three_parallel if self.ik_method == "three-parallel" else solve_spherical_wrist
         raw = solver(self._screws, W0, T, seed)
         if not raw:
             return []
@@ -631,7 +378,7 @@ class RobotModel:
             ep, er = self._pose_errors(Q, T)
         uniq: list[np.ndarray] = []
         for q in Q[(ep <= tol_pos) & (er <= tol_rot)]:
-            if not any(np.all(np.abs(_wrap(q - u)) < 1e-6) for u in uniq):
+            if not any(np.all(np.abs(wrap_angle(q - u)) < 1e-6) for u in uniq):
                 uniq.append(q)
         return uniq
 
@@ -699,7 +446,7 @@ class RobotModel:
             if qs is not None:
                 out.append(qs)
             elif not within_limits_only:
-                out.append(_wrap(q))
+                out.append(wrap_angle(q))
         return np.array(out).reshape(-1, self.dof)
 
     def ik(
@@ -721,227 +468,9 @@ class RobotModel:
             raise self._unreachable(T, "reach")
         cands = [c for c in (self._shift_into_limits(q, seed) for q in raw) if c is not None]
         if not cands:
-            detail = self.limit_violations(_wrap(raw[0]))
+            detail = self.limit_violations(wrap_angle(raw[0]))
             raise self._unreachable(T, f"; all {len(raw)} solutions violate limits, e.g. {detail[0]}")
         return min(cands, key=lambda c: float(np.sum((c - seed) ** 2)))
-
-    # numeric IK (redundant arms) ----------------------------------------------------------------
-    def _numeric_seeds(self, n: int) -> np.ndarray:
-        rng = np.random.default_rng(12345)
-        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
-        return lo + (hi - lo) * (0.1 + 0.8 * rng.random((n, self.dof)))
-
-    def _dls(
-        self,
-        T: np.ndarray,
-        q0: np.ndarray,
-        tol_pos: float,
-        tol_rot: float,
-        *,
-        clamp: bool = True,
-        max_iter: int = 150,
-    ) -> np.ndarray | None:
-        """Damped least squares with LM damping ``lambda^2 = E + 1e-9`` and a null-space pull toward home.
-
-        ``dq = J^T (J J^T + lambda^2 I)^-1 e + (I - J^+ J) k (q_home - q)``; joints clamped to the limits.
-        The pull stops once the pose error is below 1e-4 so the final steps converge quadratically.
-        """
-        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
-        q = np.clip(q0, lo, hi) if clamp else np.array(q0, dtype=float)
-        eye6 = np.eye(6)
-        for _ in range(max_iter):
-            frames, axes = self._chain(q[None])
-            e = _pose_residual(frames[0, -1], T)
-            ep, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
-            if ep < tol_pos * 1e-3 and er < tol_rot * 1e-3:
-                break
-            z, o = axes[0, :, :3, 2], axes[0, :, :3, 3]
-            J = np.concatenate([np.cross(z, frames[0, -1, :3, 3] - o), z], axis=1).T
-            lam2 = 0.5 * float(e @ e) + 1e-9
-            JJt = J @ J.T
-            dq = J.T @ np.linalg.solve(JJt + lam2 * eye6, e)
-            if self.dof > 6 and ep + er > 1e-4:  # pull off at the end so the last steps converge exactly
-                dq = dq + (np.eye(self.dof) - np.linalg.pinv(J, rcond=1e-6) @ J) @ (0.2 * (self.home - q))
-            step = float(np.max(np.abs(dq)))
-            if step > 0.5:
-                dq *= 0.5 / step
-            q = q + dq
-            if clamp:
-                q = np.clip(q, lo, hi)
-        dp, dr = pose_error(self.fk(q), T)
-        return q if (dp <= 1e-2 * tol_pos and dr <= 1e-2 * tol_rot) else None
-
-    def _bounded_lsq(
-        self, T: np.ndarray, q0: np.ndarray, tol_pos: float, tol_rot: float, *, bounded: bool = True
-    ) -> np.ndarray | None:
-        """Trust-region reflective least squares on the pose residual with the joint limits as bounds."""
-        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
-        x0 = np.clip(q0, lo + 1e-9, hi - 1e-9) if bounded else np.asarray(q0, dtype=float)
-        res = least_squares(
-            lambda q: -_pose_residual(self.fk(q), T),
-            x0,
-            jac=self.jacobian,
-            bounds=(lo, hi) if bounded else (-np.inf, np.inf),
-            method="trf",
-            xtol=1e-10,
-            ftol=1e-12,
-            gtol=1e-12,
-            max_nfev=100,
-        )
-        q = res.x
-        if bounded:
-            polished = self._polish(q, T, iters=4)
-            if self.within_limits(polished):
-                q = polished
-        dp, dr = pose_error(self.fk(q), T)
-        return q if (dp <= tol_pos and dr <= tol_rot) else None
-
-    def _ik_numeric(self, T: np.ndarray, seed: np.ndarray, tol_pos: float, tol_rot: float) -> np.ndarray:
-        """DLS from the seed (fast, continuous along paths); else bounded least squares from more seeds."""
-        q = self._dls(T, seed, tol_pos, tol_rot, max_iter=60)
-        if q is not None:
-            return q
-        for s in [seed, self.home, *self._numeric_seeds(24)]:
-            q = self._bounded_lsq(T, s, tol_pos, tol_rot)
-            if q is not None:
-                return q
-        # distinguish "outside the joint limits" from "outside the workspace"
-        for s in [seed, self.home, *self._numeric_seeds(6)]:
-            q = self._bounded_lsq(T, s, tol_pos, tol_rot, bounded=False)
-            if q is not None:
-                detail = self.limit_violations(_wrap(q)) or ["(a solution lies on a limit)"]
-                raise self._unreachable(T, f"; e.g. {detail[0]}")
-        raise self._unreachable(T, "reach")
-
-    # ------------------------------------------------------------------ motion times
-    def joint_move_time(self, q0: Any, q1: Any, speed_scale: float = 1.0) -> float:
-        """Duration (s) of a synchronized joint move (straight line in joint space, rest to rest).
-
-        All joints share one trapezoidal profile ``s(t)`` in [0, 1]; its speed and acceleration are the
-        largest that keep every joint within ``speed_scale * v_i`` and ``speed_scale^2 * a_i`` (the leading
-        axis decides). Scaling speed by ``speed_scale`` stretches time by ``1 / speed_scale`` exactly.
-        """
-        dq = np.abs(self._as_q(q1) - self._as_q(q0))
-        vs, as_ = self._sync_limits(dq, speed_scale)
-        if vs is None:
-            return 0.0
-        return float(trapezoid_time(1.0, vs, as_))
-
-    def _sync_limits(self, dq: np.ndarray, speed_scale: float) -> tuple[float | None, float]:
-        if not (0.0 < speed_scale <= 1.0):
-            raise UsageError(
-                f"speed_scale must be in (0, 1], got {speed_scale}", "use a fraction of full speed"
-            )
-        moving = dq > 1e-12
-        if not np.any(moving):
-            return None, 0.0
-        vs = float(np.min(speed_scale * self.joint_speed_limits[moving] / dq[moving]))
-        as_ = float(np.min(speed_scale**2 * self.joint_accel_limits[moving] / dq[moving]))
-        return vs, as_
-
-    def sample_joint_move(
-        self, q0: Any, q1: Any, dt: float = 0.008, speed_scale: float = 1.0
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Times (K,) and joint positions (K, dof) of :meth:`joint_move_time`'s profile every ``dt`` s."""
-        q0a, q1a = self._as_q(q0), self._as_q(q1)
-        vs, as_ = self._sync_limits(np.abs(q1a - q0a), speed_scale)
-        if vs is None:
-            return np.zeros(1), q0a[None].copy()
-        T = float(trapezoid_time(1.0, vs, as_))
-        t = np.append(np.arange(0.0, T, dt), T)
-        s = trapezoid_position(t, 1.0, vs, as_)
-        return t, q0a + s[:, None] * (q1a - q0a)
-
-    def linear_move_time(
-        self,
-        T0: Any,
-        T1: Any,
-        speed: float,
-        accel: float,
-        *,
-        rot_speed: float | None = None,
-        rot_accel: float | None = None,
-    ) -> float:
-        """Duration (s) of a straight-line TCP move: trapezoids along the path length (``speed`` m/s,
-        ``accel`` m/s^2) and the rotation angle (``rot_speed`` rad/s, default ``max_tcp_rot_speed``;
-        ``rot_accel`` default with the same ramp time as the translation); the slower one decides.
-
-        Raises :class:`SafetyError` when ``speed`` exceeds ``max_tcp_speed``.
-        """
-        if speed <= 0 or accel <= 0:
-            raise UsageError(
-                f"linear move needs speed > 0 and accel > 0, got {speed}, {accel}",
-                "give the TCP speed in m/s and acceleration in m/s^2",
-            )
-        if speed > self.max_tcp_speed + 1e-12:
-            raise SafetyError(
-                f"{self.name}: TCP speed {speed:.3f} m/s exceeds the limit {self.max_tcp_speed} m/s",
-                f"use a speed <= {self.max_tcp_speed} m/s",
-            )
-        wr = self.max_tcp_rot_speed if rot_speed is None else rot_speed
-        if wr > self.max_tcp_rot_speed + 1e-12 or wr <= 0:
-            raise SafetyError(
-                f"{self.name}: TCP rotation speed {wr:.3f} rad/s outside (0, {self.max_tcp_rot_speed:.3f}]",
-                "lower rot_speed",
-            )
-        ar = rot_accel if rot_accel is not None else accel * wr / speed
-        A, B = np.asarray(T0, dtype=float), np.asarray(T1, dtype=float)
-        L = float(np.linalg.norm(B[:3, 3] - A[:3, 3]))
-        th = rotation_angle(A[:3, :3].T @ B[:3, :3])
-        return float(max(trapezoid_time(L, speed, accel), trapezoid_time(th, wr, ar)))
-
-    def linear_path_joints(
-        self,
-        T0: Any,
-        T1: Any,
-        q_seed: Any,
-        step: float = 0.005,
-        *,
-        step_rot: float = 0.02,
-        max_joint_step: float = 0.3,
-    ) -> np.ndarray:
-        """Joint trajectory (K, dof) following the straight TCP line T0 -> T1 (slerp orientation) via IK.
-
-        Waypoints every ``step`` m / ``step_rot`` rad; each IK is seeded with the previous solution.
-        Raises :class:`SafetyError` naming the fraction of the path where it fails: a waypoint out of
-        reach or limits, or a joint jump above ``max_joint_step`` rad (singularity / branch flip).
-        """
-        A = self._check_target(T0)
-        B = self._check_target(T1)
-        L = float(np.linalg.norm(B[:3, 3] - A[:3, 3]))
-        th = rotation_angle(A[:3, :3].T @ B[:3, :3])
-        n = max(1, math.ceil(L / step), math.ceil(th / step_rot))
-        s = np.linspace(0.0, 1.0, n + 1)
-        poses = interpolate_poses(A, B, s)
-        q_prev = self._as_q(q_seed)
-        out = np.empty((n + 1, self.dof))
-        for i, (si, Ti) in enumerate(zip(s, poses, strict=True)):
-            try:
-                q = self.ik(Ti, q_prev)
-            except SafetyError as err:
-                raise SafetyError(
-                    f"{self.name}: linear path fails at {100 * si:.0f}% of the way (s={si:.3f}, "
-                    f"{si * L:.3f} m from the start): {err.message}",
-                    err.fix,
-                ) from err
-            jump = float(np.max(np.abs(q - q_prev)))
-            if i > 0 and jump > max_joint_step:
-                j = int(np.argmax(np.abs(q - q_prev)))
-                raise SafetyError(
-                    f"{self.name}: linear path fails at {100 * si:.0f}% of the way (s={si:.3f}): "
-                    f"joint {j + 1} "
-                    f"jumps {math.degrees(jump):.1f} deg in one step (singularity or branch flip)",
-                    "move in joint space past this region, or change the path or the tool orientation",
-                )
-            out[i] = q
-            q_prev = q
-        return out
-
-
-def _pose_residual(T: np.ndarray, T_target: np.ndarray) -> np.ndarray:
-    """6-vector (position error, rotation-vector error) from ``T`` to ``T_target``, base frame."""
-    dR = T_target[:3, :3] @ T[:3, :3].T
-    return np.concatenate([T_target[:3, 3] - T[:3, 3], Rotation.from_matrix(dR).as_rotvec()])
 
 
 # ----------------------------------------------------------------------------------------- registry
