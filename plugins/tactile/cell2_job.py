@@ -8,7 +8,7 @@
    map the scan to the robot base with the estimate, denoise, find the seams (the profile's ``seam``
    stage, ``seam.edge-intensity`` by default) and keep the one with a side wall. The planned path so
    carries the real calibration error plus the vision error.
-3. **Track** the seam with the SRM tool (:func:`weldcell.plugins.tactile.job.track`): Algorithm 2 at
+3. **Track** the seam with the SRM tool (:func:`weldcell.plugins.tactile.tracking.track`): Algorithm 2 at
    camera rate through the HAL safety gate; the wall, not the plan, sets the path.
 4. **Report** both phases: ``summary.txt`` and ``result.json`` figures (calibration error vs truth,
    vision-planned path error, refined path RMS vs the true seam in the simulated cell), the calibration
@@ -30,7 +30,10 @@ from weldcell.sdk.errors import JobError
 from weldcell.sdk.geometry import pose_error
 from weldcell.sdk.settings import Settings
 
-from .job import ScanSettings, TrackSettings, read_T_base_camera, scan_for_seam, summary_text, track
+from .track_results import device_truth, refined_weld_path, summary_text
+from .track_settings import ScanSettings, TrackSettings
+from .tracking import track
+from .vision_plan import read_T_base_camera, scan_for_seam, true_seams
 
 
 class CalibrateAndTrackSettings(Settings):
@@ -89,8 +92,6 @@ def calibration_error_vs_samples(run_dir, truth: np.ndarray, feature) -> list[di
 
 def run(ctx) -> dict[str, Any]:
     """The ``calibrate-and-track`` job."""
-    from .job import _true_seams
-
     s: CalibrateAndTrackSettings = ctx.settings
     if ctx.profile.devices["camera"].mount.parent not in ("world", "base"):
         raise JobError(
@@ -121,15 +122,13 @@ def run(ctx) -> dict[str, Any]:
     # 2. vision plan with the ESTIMATED hand-eye --------------------------------------------------
     S = ctx.stage_settings("servo")
     plan = scan_for_seam(
-        ctx, ctx.device("camera"), T_est, s.scan, S.wall_side, _true_seams(ctx), prefix="plan: "
+        ctx, ctx.device("camera"), T_est, s.scan, S.wall_side, true_seams(ctx), prefix="plan: "
     )
     figures["plan"] = {
         "source": "vision with the estimated hand-eye",
         **{k: v for k, v in plan.info.items() if k != "candidates"},
     }
     from weldcell.sdk.weldpath import SeamPath, WeldPath
-
-    from .job import refined_weld_path
 
     poses = refined_weld_path(plan.points, S.wall_side).seams[0].poses
     WeldPath(
@@ -228,13 +227,12 @@ def _report_html(ctx, figures: dict[str, Any], plan_points: np.ndarray) -> None:
     from weldcell.sdk.artifacts import read_json
 
     from . import report as tactile_report
-    from .job import _truth
 
     track_file = ctx.run_dir / "tactile_track.json"
     tactile = figures.get("tactile") or ctx.figures.get("tactile")
     if not track_file.is_file() or not tactile:
         return
-    truth = _truth(ctx, np.asarray(plan_points, dtype=float), ctx.stage_settings("servo"))
+    truth = device_truth(ctx, np.asarray(plan_points, dtype=float), ctx.stage_settings("servo"))
     data = tactile_report.TrackData.from_document(
         read_json(track_file), None if truth is None else truth["seam"]
     )

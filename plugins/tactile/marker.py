@@ -289,6 +289,7 @@ class MarkerDisplacementEstimator:
     camera x along tool x).
     """
 
+    # parameters: the tag, the camera and the One-Euro filter, each a keyword with a default
     def __init__(
         self,
         intrinsics: CameraIntrinsics,

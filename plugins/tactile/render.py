@@ -63,6 +63,7 @@ def project_tag_corners(
     return img.reshape(4, 2)
 
 
+# parameters: the pose, camera and tag of one rendered frame, each a keyword with a default
 def render_tag_image(
     T_cam_tag: np.ndarray,
     intrinsics: CameraIntrinsics,

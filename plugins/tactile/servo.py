@@ -141,6 +141,7 @@ class OmegaSolution:
     exact: float  # the undamped value (may be ±inf at the singularity)
 
 
+# parameters: the terms of eqs. 14-18 (velocities, frames, torch offset, gains); called from one place
 def torch_angular_velocity(
     V_r: np.ndarray,
     t_d: np.ndarray,
@@ -383,7 +384,50 @@ class TactileSeamServo:
             raise DataError("servo: robot pose must be a finite 4x4 transform", "pass the measured TCP pose")
         dt = 0.0 if m.t_prev is None else max(0.0, t - m.t_prev)
         m.t_prev = t
-        # lines 3-5: tool direction and end-effector position
+        t_d, n_d, P_r, P_t = self._tool_pose(T)  # lines 3-5
+        delta_tool, lost = self._deformation(delta_tool)  # line 6
+        delta_base = (T[:3, :3] @ delta_tool) if delta_tool is not None else np.zeros(3)
+        # line 22-23: nearest planned point
+        s_plan, P_v, t_v, n_v, past_end = self._plan_frame(P_r)
+        delta_n, delta_t = split_deformation(delta_base, t_v, n_v)
+        self._update_contact(delta_tool is not None, delta_n)
+        # lines 7, 16-20: REFINE (only from real, in-contact measurements)
+        P_s = None
+        if m.contact and not lost and m.state in ("approach", "tracking"):
+            P_s2 = refine_point(P_r, delta_base)
+            P_s = np.array([P_s2[0], P_s2[1], P_r[2] - delta_base[2]])
+            self.refined.append(P_s, t)
+        self._end_of_seam(t, lost, delta_tool, past_end, s_plan, P_r, t_v)
+        V2, delta_d = self._travel_velocity(t, delta_tool, delta_n, t_v, n_v)  # line 8 / 21-26
+        V2, sol, e_t = self._torch_rate(V2, t_d, n_d, P_t, t_v)  # lines 9-13
+        omega = sol.omega
+        if m.state == "stopping":
+            omega *= quintic_ramp_down((t - m.stop_t0) / S.stop_time)
+        if m.state in ("stopped", "fault"):
+            omega = 0.0
+        twist = self._command(T, V2, omega, P_v[2] - P_r[2], dt)  # line 14
+        m.v_prev = twist[:3].copy()
+        return ServoCommand(
+            t,
+            twist,
+            m.state,
+            m.reason,
+            m.contact,
+            delta_n,
+            delta_t,
+            delta_d,
+            P_r,
+            P_s,
+            P_t,
+            s_plan,
+            float(twist[5]),
+            sol.weight,
+            e_t,
+        )
+
+    def _tool_pose(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Algorithm 2 lines 3-5: tool travel direction t_d and its normal n_d (plane), end-effector P_r
+        and torch P_t positions."""
         x_axis = T[:2, 0]
         if np.linalg.norm(x_axis) < 1e-6:
             raise DataError(
@@ -393,9 +437,14 @@ class TactileSeamServo:
         t_d = x_axis / np.linalg.norm(x_axis)
         n_d = left_normal(t_d)
         P_r = T[:3, 3].copy()
-        P_t2 = torch_position(P_r, t_d, S.torch_offset)
+        P_t2 = torch_position(P_r, t_d, self.settings.torch_offset)
         P_t = np.array([P_t2[0], P_t2[1], P_r[2]])
-        # line 6: deformation (hold the last one through short marker losses)
+        return t_d, n_d, P_r, P_t
+
+    def _deformation(self, delta_tool: np.ndarray | None) -> tuple[np.ndarray | None, bool]:
+        """Line 6: the deformation to use (the last one held through short marker losses) and whether
+        this frame's marker was lost."""
+        m = self._m
         lost = delta_tool is None
         if lost:
             m.lost += 1
@@ -409,14 +458,14 @@ class TactileSeamServo:
                     "pass P_r - P_s in the tool frame, or None when the marker is lost",
                 )
             m.last_delta = delta_tool
-        delta_base = (T[:3, :3] @ delta_tool) if delta_tool is not None else np.zeros(3)
-        # line 22-23: nearest planned point
-        s_plan, P_v, t_v, n_v, past_end = self._plan_frame(P_r)
-        delta_n, delta_t = split_deformation(delta_base, t_v, n_v)
-        # contact with hysteresis (paper mode: a plain threshold, no hysteresis)
+        return delta_tool, lost
+
+    def _update_contact(self, measured: bool, delta_n: float) -> None:
+        """Contact with hysteresis and debounce (paper mode: a plain threshold); approach → tracking."""
+        S, m = self.settings, self._m
         if S.end_mode == "paper":
-            m.contact = delta_tool is not None and delta_n > S.contact_on
-        elif delta_tool is not None:
+            m.contact = measured and delta_n > S.contact_on
+        elif measured:
             if delta_n > S.contact_on:
                 m.contact, m.below = True, 0
             elif delta_n < S.contact_off:
@@ -426,13 +475,19 @@ class TactileSeamServo:
         m.ever_contact = m.ever_contact or m.contact
         if m.state == "approach" and m.contact:
             m.state = "tracking"
-        # lines 7, 16-20: REFINE (only from real, in-contact measurements)
-        P_s = None
-        if m.contact and not lost and m.state in ("approach", "tracking"):
-            P_s2 = refine_point(P_r, delta_base)
-            P_s = np.array([P_s2[0], P_s2[1], P_r[2] - delta_base[2]])
-            self.refined.append(P_s, t)
-        # state transitions of the safe end-of-seam logic
+
+    def _end_of_seam(
+        self,
+        t: float,
+        lost: bool,
+        delta_tool: np.ndarray | None,
+        past_end: bool,
+        s_plan: float,
+        P_r: np.ndarray,
+        t_v: np.ndarray,
+    ) -> None:
+        """State transitions of the safe end-of-seam logic (paper mode: stop at once)."""
+        S, m = self.settings, self._m
         if m.state in ("approach", "tracking") and S.end_mode == "hold-and-stop":
             if lost and m.lost > S.max_lost_frames:
                 self._begin_stop(t, "marker lost", m.v_prev[:2], 0.0)
@@ -451,7 +506,12 @@ class TactileSeamServo:
                 m.state, m.reason = "stopped", "marker lost"
             elif past_end:
                 m.state, m.reason = "stopped", "end of planned path"
-        # line 8 / 21-26: SERVO
+
+    def _travel_velocity(
+        self, t: float, delta_tool: np.ndarray | None, delta_n: float, t_v: np.ndarray, n_v: np.ndarray
+    ) -> tuple[np.ndarray, float]:
+        """Line 8 / 21-26, SERVO: the planar velocity V2 and the desired deformation δ_d used."""
+        S, m = self.settings, self._m
         delta_d = S.delta_d
         if m.state in ("approach", "tracking"):
             if S.end_mode == "paper" and m.ever_contact and not m.contact:
@@ -478,7 +538,14 @@ class TactileSeamServo:
                 m.state = "stopped"
         else:
             V2 = np.zeros(2)
-        # lines 9-13: torch frame and ω
+        return V2, delta_d
+
+    def _torch_rate(
+        self, V2: np.ndarray, t_d: np.ndarray, n_d: np.ndarray, P_t: np.ndarray, t_v: np.ndarray
+    ) -> tuple[np.ndarray, OmegaSolution, float]:
+        """Lines 9-13: the torch frame and ω; in the singular zone the travel slows (the deformation
+        servo's normal part kept). Returns V2, the ω solution and the torch's lateral error."""
+        S, m = self.settings, self._m
         t_t, n_t, e_t = self._torch_frame(P_t)
         heading_error = math.atan2(t_d[0] * t_t[1] - t_d[1] * t_t[0], float(t_d @ t_t))
 
@@ -504,12 +571,13 @@ class TactileSeamServo:
             along = float(V2 @ t_v)
             V2 = V2 + (sol.weight - 1.0) * along * t_v
             sol = omega_for(V2)
-        omega = sol.omega
-        if m.state == "stopping":
-            omega *= quintic_ramp_down((t - m.stop_t0) / S.stop_time)
-        if m.state in ("stopped", "fault"):
-            omega = 0.0
-        vz = S.z_gain * (P_v[2] - P_r[2]) if m.state in ("approach", "tracking") else 0.0
+        return V2, sol, e_t
+
+    def _command(self, T: np.ndarray, V2: np.ndarray, omega: float, dz: float, dt: float) -> np.ndarray:
+        """The twist sent: height servo on ``dz`` (plan minus TCP), acceleration limit, then (line 14)
+        the safety gate; a refusal is a fault and a zero twist."""
+        S, m = self.settings, self._m
+        vz = S.z_gain * dz if m.state in ("approach", "tracking") else 0.0
         V = np.array([V2[0], V2[1], vz])
         if m.state in ("approach", "tracking") and dt > 0:  # acceleration limit
             dv = V - m.v_prev
@@ -518,7 +586,6 @@ class TactileSeamServo:
             if nd > lim:
                 V = m.v_prev + dv * (lim / nd)
         twist = np.array([V[0], V[1], V[2], 0.0, 0.0, omega])
-        # line 14: apply, through the safety gate
         if m.state == "fault":
             twist = np.zeros(6)
         elif self.gate is not None and np.any(twist != 0.0):
@@ -527,24 +594,7 @@ class TactileSeamServo:
             except SafetyError as exc:
                 m.state, m.reason = "fault", f"safety: {exc.message}"
                 twist = np.zeros(6)
-        m.v_prev = twist[:3].copy()
-        return ServoCommand(
-            t,
-            twist,
-            m.state,
-            m.reason,
-            m.contact,
-            delta_n,
-            delta_t,
-            delta_d,
-            P_r,
-            P_s,
-            P_t,
-            s_plan,
-            float(twist[5]),
-            sol.weight,
-            e_t,
-        )
+        return twist
 
     def _hold_direction(self, t_v: np.ndarray) -> np.ndarray:
         """Direction to coast in while stopping: the refined path's last tangent, else the plan's."""

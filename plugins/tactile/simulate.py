@@ -80,6 +80,7 @@ def initial_tool_pose(planned_points: np.ndarray) -> np.ndarray:
     return frame_from_axes([t[0], t[1], 0.0], [0.0, 0.0, -1.0], [p[0], p[1], z0])
 
 
+# keyword-only simulation options, each with a default (the paper §3.1 protocol's knobs)
 def track_seam(
     seam_points_true: np.ndarray,
     planned_path_with_error: np.ndarray,
@@ -136,62 +137,29 @@ def track_seam(
     dt = 1.0 / rate_hz
     if max_time is None:
         max_time = 3.0 * (Polyline(plan).length + 0.05) / S.speed + 5.0
-    rec: dict[str, list] = {
-        k: []
-        for k in (
-            "t",
-            "robot",
-            "torch",
-            "tip",
-            "alpha",
-            "twist",
-            "dn",
-            "dt",
-            "dn_true",
-            "dd",
-            "contact",
-            "contact_true",
-            "lost",
-            "state",
+
+    def read_marker(T_cam_tag: np.ndarray, t: float):
+        if render:
+            return est.update(cam.render(T_cam_tag), t)
+        noisy = make_T(
+            Rotation.from_rotvec(rng.normal(0.0, 2e-3, 3)).as_matrix() @ T_cam_tag[:3, :3],
+            T_cam_tag[:3, 3] + rng.normal(0.0, marker_noise, 3) * np.array([1.0, 1.0, 2.0]),
         )
-    }
+        return est.update_pose(noisy, t)
+
+    rec: dict[str, list] = {k: [] for k in _RECORDED}
     v_prev = np.zeros(3)
     k = 0
     cmd = None
     while k * dt <= max_time:
         t = k * dt
         c = contact(T, wp, srm, v_prev)
-        T_cam_tag = tag_pose(c.deflection_tool, srm, cam.T_cam_tag_rest)
-        if render:
-            reading = est.update(cam.render(T_cam_tag), t)
-        else:
-            noisy = make_T(
-                Rotation.from_rotvec(rng.normal(0.0, 2e-3, 3)).as_matrix() @ T_cam_tag[:3, :3],
-                T_cam_tag[:3, 3] + rng.normal(0.0, marker_noise, 3) * np.array([1.0, 1.0, 2.0]),
-            )
-            reading = est.update_pose(noisy, t)
+        reading = read_marker(tag_pose(c.deflection_tool, srm, cam.T_cam_tag_rest), t)
         delta_tool = None
         if isinstance(reading, MarkerReading):
             delta_tool = -tip_deflection_from_tag(reading.displacement, assumed)
         cmd = servo.step(t, T, delta_tool)
-        sigma = 1.0 if S.wall_side == "left" else -1.0
-        n_true = -c.wall_normal if c.in_contact else None
-        true_dn = float((-(T[:3, :3] @ c.deflection_tool))[:2] @ n_true[:2]) if n_true is not None else 0.0
-        _ = sigma
-        rec["t"].append(t)
-        rec["robot"].append(T[:3, 3].copy())
-        rec["torch"].append(cmd.P_t)
-        rec["tip"].append(c.tip_position)
-        rec["alpha"].append(float(np.arctan2(T[1, 0], T[0, 0])))
-        rec["twist"].append(cmd.twist)
-        rec["dn"].append(cmd.delta_n if delta_tool is not None else np.nan)
-        rec["dt"].append(cmd.delta_t if delta_tool is not None else np.nan)
-        rec["dn_true"].append(true_dn)
-        rec["dd"].append(cmd.delta_d)
-        rec["contact"].append(cmd.in_contact)
-        rec["contact_true"].append(c.in_contact)
-        rec["lost"].append(delta_tool is None)
-        rec["state"].append(cmd.state)
+        _record(rec, t, T, cmd, c, delta_tool is not None)
         if cmd.done:
             break
         # ideal velocity-integrating robot: twist of the TCP held for one frame
@@ -201,6 +169,51 @@ def track_seam(
         T[:3, :3] = Rotation.from_rotvec(w * dt).as_matrix() @ T[:3, :3]
         v_prev = v
         k += 1
+    return _tracking_result(rec, servo, plan, seam, cmd, S, srm)
+
+
+_RECORDED = (
+    "t",
+    "robot",
+    "torch",
+    "tip",
+    "alpha",
+    "twist",
+    "dn",
+    "dt",
+    "dn_true",
+    "dd",
+    "contact",
+    "contact_true",
+    "lost",
+    "state",
+)
+
+
+def _record(rec: dict[str, list], t: float, T: np.ndarray, cmd, c, measured: bool) -> None:
+    """One frame of the simulation: the servo's command and the true contact."""
+    n_true = -c.wall_normal if c.in_contact else None
+    true_dn = float((-(T[:3, :3] @ c.deflection_tool))[:2] @ n_true[:2]) if n_true is not None else 0.0
+    rec["t"].append(t)
+    rec["robot"].append(T[:3, 3].copy())
+    rec["torch"].append(cmd.P_t)
+    rec["tip"].append(c.tip_position)
+    rec["alpha"].append(float(np.arctan2(T[1, 0], T[0, 0])))
+    rec["twist"].append(cmd.twist)
+    rec["dn"].append(cmd.delta_n if measured else np.nan)
+    rec["dt"].append(cmd.delta_t if measured else np.nan)
+    rec["dn_true"].append(true_dn)
+    rec["dd"].append(cmd.delta_d)
+    rec["contact"].append(cmd.in_contact)
+    rec["contact_true"].append(c.in_contact)
+    rec["lost"].append(not measured)
+    rec["state"].append(cmd.state)
+
+
+def _tracking_result(
+    rec: dict[str, list], servo, plan, seam, cmd, S: ServoSettings, srm: SRMParams
+) -> TrackingResult:
+    """The recorded frames, the refined path and its seam estimate, with :func:`tracking_metrics`."""
     refined = servo.refined.points
     seam_est = seam_from_tip_path(refined, S.tip_radius, S.wall_side, S.tangent_window)
     res = TrackingResult(
