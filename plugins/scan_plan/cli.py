@@ -4,7 +4,8 @@ Both run the same stage plugins as the ``scan-and-plan`` job, looked up by name 
 registry, so a profile that selects another plugin for a stage (``--profile``) is honoured here too.
 
 * ``weldcell seam CLOUD -o path.json``: a cloud in the robot base frame → bilateral denoising →
-  edge-intensity seams → 6-DOF torch paths → ``weldcell/weld-path@1`` (+ robot programs, + a picture).
+  edge-intensity seams → 6-DOF torch paths (:func:`.cloud_pipeline.plan_on_cloud`, as the job) →
+  ``weldcell/weld-path@1`` (+ robot programs, + a picture).
 * ``weldcell reconstruct SCANS_DIR -o model.ply``: posed scans (a run folder, or a folder with a
   ``weldcell/posed-scans@1`` ``scans.json``) + hand-eye → merged model refined by linear ICP.
 """
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import time
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +27,7 @@ from weldcell.sdk.geometry import T_from_rpy, rotation_angle
 from weldcell.sdk.units import parse_quantity
 from weldcell.sdk.weldpath import WeldPath
 
+from .cloud_pipeline import plan_on_cloud
 from .scans_io import SCANS_SCHEMA, PosedScans, check_mount, load_posed_scans, read_input_cloud  # noqa: F401
 
 JOB = "scan-and-plan"
@@ -127,39 +128,6 @@ def parse_floats(text: str, n: int, dims: tuple[str, ...], what: str) -> np.ndar
 
 
 # ------------------------------------------------------------------------------------------------ seams
-@dataclass
-class SeamRun:
-    """What ``weldcell seam`` computed: the weld path, the cloud the seams were found on, timings."""
-
-    path: WeldPath
-    cloud: PointCloud
-    extraction: Any
-    timings: dict[str, float] = field(default_factory=dict)
-
-
-def plan_seams(
-    cloud: PointCloud, stages: dict[str, tuple[Any, Any]], frame: str = "base", denoise: bool = True
-) -> SeamRun:
-    """Denoise (optional) → seams → torch paths with the given stage plugins, as the job does."""
-    timings: dict[str, float] = {}
-
-    def timed(name, fn, *args, **kw):
-        t0 = time.perf_counter()
-        result = fn(*args, **kw)
-        timings[name] = time.perf_counter() - t0
-        return result
-
-    clean = cloud
-    if denoise:
-        spec, settings = stages["denoise"]
-        clean = timed("denoise", spec.factory(settings), cloud)
-    spec, settings = stages["seam"]
-    extraction = timed("seams", spec.factory(settings), clean)
-    spec, settings = stages["path"]
-    path = timed("path", spec.factory(settings), extraction.seams, frame=frame)
-    return SeamRun(path, clean, extraction, timings)
-
-
 def write_seam_report(
     out_dir: Path, source: Path, cloud: PointCloud, path: WeldPath, summary: list[str], outputs: list[Path]
 ) -> list[Path]:
@@ -245,6 +213,7 @@ def _pm():
     metavar="ROLE.KEY=VALUE",
     help="Set a stage setting, e.g. seam.min_seam_length='30 mm'. Repeatable.",
 )
+# one parameter per click option (click passes them by name); the work is in plan_on_cloud
 def seam_command(
     cloud: Path,
     output: Path,
@@ -286,9 +255,11 @@ def seam_command(
         click.echo(f"                dropped {dropped} invalid points (NaN, inf or at the origin)")
     if viewpoint is not None:
         pc.meta["viewpoints"] = [parse_floats(viewpoint, 3, ("length",) * 3, "--viewpoint").tolist()]
-    result = plan_seams(pc, stages, frame=frame, denoise=not no_denoise)
+    result = plan_on_cloud(
+        pc, lambda role: stages[role][0].factory(stages[role][1]), frame=frame, denoise=not no_denoise
+    )
     path = result.path
-    if not path.seams:
+    if path is None or not path.seams:
         raise DataError(
             f"no weld seam was found on {cloud} ({len(result.cloud)} points)",
             "check the cloud shows the joint; lower --t, or --set seam.min_seam_length='10 mm'",
@@ -402,6 +373,7 @@ def hand_eye_option(
     help="Model placement (same as --set reconstruct.anchor=...): 'hand-eye' also finds the hand-eye "
     "transform's error from the views and corrects it.",
 )
+# one parameter per click option (click passes them by name); the work is in reconstruct()
 def reconstruct_command(
     scans_dir: Path,
     output: Path,
