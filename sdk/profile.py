@@ -385,25 +385,39 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
     """
     p = loaded.profile
     problems: list[tuple[tuple[str, ...], str]] = []
-    devices: dict[str, tuple[Any, Any]] = {}
-    stages: dict[str, tuple[Any, Any]] = {}
-    exporters: list[Any] = []
-    exporter_settings: dict[str, Any] = {}
-
-    def settings_for(spec, values: dict, key: tuple[str, ...]):
-        try:
-            return spec.settings.model_validate(values)
-        except ValidationError as e:
-            problems.extend(pydantic_problems(e, key))
-            return None
-
     try:
         job = registry.get("job", p.job.name)
     except WeldcellError as e:
         problems.append((("job", "name"), f"{e.message}; {e.fix}" if e.fix else e.message))
         raise _profile_error(loaded, problems) from None
-    job_settings = settings_for(job, p.job.settings, ("job", "settings"))
+    job_settings = _settings_for(problems, job, p.job.settings, ("job", "settings"))
+    devices = _resolve_devices(p, job, registry, problems)
+    stages = _resolve_stages(p, job, registry, problems)
+    exporters, exporter_settings = _resolve_exporters(p, registry, problems)
+    _check_calibration_files(loaded, problems)
+    if extra_checks is not None:
+        problems.extend(extra_checks(loaded))
 
+    if problems:
+        raise _profile_error(loaded, problems)
+    return ResolvedProfile(job, job_settings, devices, stages, exporters, exporter_settings)
+
+
+Problems = list[tuple[tuple[str, ...], str]]
+
+
+def _settings_for(problems: Problems, spec, values: dict, key: tuple[str, ...]):
+    """``spec``'s settings model validated from ``values``; None (and the problems noted) when invalid."""
+    try:
+        return spec.settings.model_validate(values)
+    except ValidationError as e:
+        problems.extend(pydantic_problems(e, key))
+        return None
+
+
+def _resolve_devices(p, job, registry, problems: Problems) -> dict[str, tuple[Any, Any]]:
+    """``{role: (DeviceSpec, settings)}`` of the profile's devices, checked against the job's roles."""
+    devices: dict[str, tuple[Any, Any]] = {}
     roles = {r.role: r for r in job.devices}
     for role, entry in p.devices.items():
         key = ("devices", role)
@@ -414,7 +428,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
             except WeldcellError as e:
                 problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
                 continue
-            devices[role] = (spec, settings_for(spec, entry.settings, (*key, "settings")))
+            devices[role] = (spec, _settings_for(problems, spec, entry.settings, (*key, "settings")))
             continue
         if role not in roles:
             problems.append(
@@ -431,7 +445,7 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
         except WeldcellError as e:
             problems.append(((*key, "plugin"), f"{e.message}; {e.fix}" if e.fix else e.message))
             continue
-        settings = settings_for(spec, entry.settings, (*key, "settings"))
+        settings = _settings_for(problems, spec, entry.settings, (*key, "settings"))
         if entry.mount.parent not in ("world", "base") and not entry.mount.parent.endswith(".flange"):
             problems.append(
                 (
@@ -456,6 +470,13 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
                 )
             )
 
+    return devices
+
+
+def _resolve_stages(p, job, registry, problems: Problems) -> dict[str, tuple[Any, Any]]:
+    """``{role: (StageSpec, settings)}`` of every stage role of the job (the profile's plugin, else the
+    default)."""
+    stages: dict[str, tuple[Any, Any]] = {}
     stage_roles = {r.role: r for r in job.stages}
     for role in p.stages:
         if role not in stage_roles:
@@ -478,9 +499,16 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
             continue
         stages[role] = (
             spec,
-            settings_for(spec, entry.settings if entry else {}, (*key, "settings")),
+            _settings_for(problems, spec, entry.settings if entry else {}, (*key, "settings")),
         )
 
+    return stages
+
+
+def _resolve_exporters(p, registry, problems: Problems) -> tuple[list[Any], dict[str, Any]]:
+    """The profile's exporters and their settings."""
+    exporters: list[Any] = []
+    exporter_settings: dict[str, Any] = {}
     for i, name in enumerate(p.output.exporters):
         try:
             spec = registry.get("exporter", name)
@@ -491,8 +519,8 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
                 (("output", "exporters", str(i)), f"{e.message}; {e.fix}" if e.fix else e.message)
             )
             continue
-        exporter_settings[name] = settings_for(
-            spec, p.output.exporter_settings.get(name, {}), ("output", "exporter_settings", name)
+        exporter_settings[name] = _settings_for(
+            problems, spec, p.output.exporter_settings.get(name, {}), ("output", "exporter_settings", name)
         )
     for name in p.output.exporter_settings:
         if name not in p.output.exporters:
@@ -503,16 +531,14 @@ def validate_profile(loaded: LoadedProfile, registry, extra_checks=None) -> Reso
                 )
             )
 
-    for name, rel in p.calibration.items():
+    return exporters, exporter_settings
+
+
+def _check_calibration_files(loaded: LoadedProfile, problems: Problems) -> None:
+    """Every ``[calibration]`` file exists (relative to the profile that names it)."""
+    for name, rel in loaded.profile.calibration.items():
         f = (loaded.source_of(("calibration", name)).parent / rel).resolve()
         if not f.is_file():
             problems.append(
                 (("calibration", name), f"file not found: {f}; run `weldcell calibrate` or fix the path")
             )
-
-    if extra_checks is not None:
-        problems.extend(extra_checks(loaded))
-
-    if problems:
-        raise _profile_error(loaded, problems)
-    return ResolvedProfile(job, job_settings, devices, stages, exporters, exporter_settings)

@@ -147,61 +147,12 @@ def export_rapid(data: dict, settings: RapidSettings | None = None) -> ExportRes
     s = settings or RapidSettings()
     plan = build_plan(data, s, s.weld_speed, s.travel_speed, _blend_of(s))
     check_plan(plan, s)
-    x, y, z, qx, qy, qz, qw = T_to_pose7(plan.T_flange_tcp)
-    cog_z = 0.5 * z * 1000.0
-    decl = [
-        f"    PERS tooldata {s.tool} := [TRUE,[[{x * 1000:.3f},{y * 1000:.3f},{z * 1000:.3f}],"
-        f"[{qw:.7f},{qx:.7f},{qy:.7f},{qz:.7f}]],[{s.tool_mass:g},[0,0,{cog_z:.1f}],[1,0,0,0],0,0,0]];",
-    ]
-    if s.wobj != "wobj0":
-        frame = "[[0,0,0],[1,0,0,0]]"
-        decl.append(f'    PERS wobjdata {s.wobj} := [FALSE,TRUE,"",{frame},{frame}];')
-    decl.append(f"    CONST speeddata {s.approach_speed} := {_speeddata(s.travel_speed * 1000)};")
-    decl.append(f"    CONST speeddata {s.speed} := {_speeddata(s.weld_speed * 1000)};")
-    zones: dict[float, str] = {}
-    for m in plan.motions:
-        if _zone_mm(m.blend) > 0:
-            zones.setdefault(_zone_mm(m.blend), f"zW{len(zones)}")
-    for r, name in zones.items():
-        o = f"{0.1 * r:.3g}"
-        decl.append(f"    CONST zonedata {name} := [FALSE,{r:g},{r:g},{r:g},{o},{r:g},{o}];")
-    zero = "[0,0,0,0,0,0,0,0,0]"
-    decl.append(
-        f"    PERS seamdata {s.seamdata} := [{s.purge_time:g},{s.preflow_time:g},{zero},0,0,0,0,0,{zero},0,0,"
-        f"{zero},0,0,{zero},0];"
-    )
+    decl, zones = _rapid_declarations(plan, s)
     configs, how = plan_configs(plan, "abb")
     conf = iter(configs or [])
     targets, procs = [], []
     for si, seam in enumerate(plan.seams):
-        wd = f"{s.welddata}_{si}"
-        decl.append(
-            f"    PERS welddata {wd} := [{seam.weld_speed * 1000:.1f},0,"
-            f"[{s.weld_schedule},0,0,0,0,0,0,0,0],{zero}];"
-        )
-        proc = seam.routine
-        body = [f"    ! seam {seam.id} ({seam.joint}, {seam.length * 1000:.1f} mm)", f"    PROC {proc}()"]
-        tool, arc = f"{s.tool}\\WObj:={s.wobj}", f"{s.seamdata}, {wd}"
-        for k, m in enumerate(seam.motions):
-            name = f"p{si}_{k}"
-            px, py, pz, ax, ay, az, aw = T_to_pose7(m.pose)
-            cf = ",".join(str(v) for v in next(conf, (0, 0, 0, 0)))
-            targets.append(
-                f"    CONST robtarget {name} := [[{px * 1000:.3f},{py * 1000:.3f},{pz * 1000:.3f}],"
-                f"[{aw:.7f},{ax:.7f},{ay:.7f},{az:.7f}],[{cf}],[9E9,9E9,9E9,9E9,9E9,9E9]];"
-            )
-            zone = zones[_zone_mm(m.blend)] if _zone_mm(m.blend) > 0 else "fine"
-            if m.kind == "joint":
-                body.append(f"        MoveJ {name}, {s.approach_speed}, fine, {tool};")
-            elif m.process == "arc_start":
-                body.append(f"        ArcLStart {name}, {s.approach_speed}, {arc}, fine, {tool};")
-            elif m.process == "weld":
-                body.append(f"        ArcL {name}, {s.speed}, {arc}, {zone}, {tool};")
-            elif m.process == "arc_end":
-                body.append(f"        ArcLEnd {name}, {s.speed}, {arc}, fine, {tool};")
-            else:
-                body.append(f"        MoveL {name}, {s.approach_speed}, fine, {tool};")
-        procs += [*body, "    ENDPROC", ""]
+        procs += _rapid_seam(si, seam, s, zones, conf, decl, targets)
     if configs is not None:
         head = plan.header(f"confdata {how}; configuration monitoring on")
         conf_note = [
@@ -233,6 +184,69 @@ def export_rapid(data: dict, settings: RapidSettings | None = None) -> ExportRes
         "ENDMODULE",
     ]
     return ExportResult("\n".join(out) + "\n", plan)
+
+
+def _rapid_declarations(plan, s: RapidSettings) -> tuple[list[str], dict[float, str]]:
+    """The module's tool, work object, speed, zone and seam data; the zone name of each blend (mm)."""
+    x, y, z, qx, qy, qz, qw = T_to_pose7(plan.T_flange_tcp)
+    cog_z = 0.5 * z * 1000.0
+    decl = [
+        f"    PERS tooldata {s.tool} := [TRUE,[[{x * 1000:.3f},{y * 1000:.3f},{z * 1000:.3f}],"
+        f"[{qw:.7f},{qx:.7f},{qy:.7f},{qz:.7f}]],[{s.tool_mass:g},[0,0,{cog_z:.1f}],[1,0,0,0],0,0,0]];",
+    ]
+    if s.wobj != "wobj0":
+        frame = "[[0,0,0],[1,0,0,0]]"
+        decl.append(f'    PERS wobjdata {s.wobj} := [FALSE,TRUE,"",{frame},{frame}];')
+    decl.append(f"    CONST speeddata {s.approach_speed} := {_speeddata(s.travel_speed * 1000)};")
+    decl.append(f"    CONST speeddata {s.speed} := {_speeddata(s.weld_speed * 1000)};")
+    zones: dict[float, str] = {}
+    for m in plan.motions:
+        if _zone_mm(m.blend) > 0:
+            zones.setdefault(_zone_mm(m.blend), f"zW{len(zones)}")
+    for r, name in zones.items():
+        o = f"{0.1 * r:.3g}"
+        decl.append(f"    CONST zonedata {name} := [FALSE,{r:g},{r:g},{r:g},{o},{r:g},{o}];")
+    decl.append(
+        f"    PERS seamdata {s.seamdata} := [{s.purge_time:g},{s.preflow_time:g},{_ZERO9},0,0,0,0,0,"
+        f"{_ZERO9},0,0,{_ZERO9},0,0,{_ZERO9},0];"
+    )
+    return decl, zones
+
+
+_ZERO9 = "[0,0,0,0,0,0,0,0,0]"
+
+
+def _rapid_seam(si: int, seam, s: RapidSettings, zones: dict[float, str], conf, decl: list, targets: list):
+    """One seam's PROC (returned, with an empty line after it); its welddata goes to ``decl``, its
+    robtargets (with the next confdata of ``conf``) to ``targets``."""
+    wd = f"{s.welddata}_{si}"
+    decl.append(
+        f"    PERS welddata {wd} := [{seam.weld_speed * 1000:.1f},0,"
+        f"[{s.weld_schedule},0,0,0,0,0,0,0,0],{_ZERO9}];"
+    )
+    proc = seam.routine
+    body = [f"    ! seam {seam.id} ({seam.joint}, {seam.length * 1000:.1f} mm)", f"    PROC {proc}()"]
+    tool, arc = f"{s.tool}\\WObj:={s.wobj}", f"{s.seamdata}, {wd}"
+    for k, m in enumerate(seam.motions):
+        name = f"p{si}_{k}"
+        px, py, pz, ax, ay, az, aw = T_to_pose7(m.pose)
+        cf = ",".join(str(v) for v in next(conf, (0, 0, 0, 0)))
+        targets.append(
+            f"    CONST robtarget {name} := [[{px * 1000:.3f},{py * 1000:.3f},{pz * 1000:.3f}],"
+            f"[{aw:.7f},{ax:.7f},{ay:.7f},{az:.7f}],[{cf}],[9E9,9E9,9E9,9E9,9E9,9E9]];"
+        )
+        zone = zones[_zone_mm(m.blend)] if _zone_mm(m.blend) > 0 else "fine"
+        if m.kind == "joint":
+            body.append(f"        MoveJ {name}, {s.approach_speed}, fine, {tool};")
+        elif m.process == "arc_start":
+            body.append(f"        ArcLStart {name}, {s.approach_speed}, {arc}, fine, {tool};")
+        elif m.process == "weld":
+            body.append(f"        ArcL {name}, {s.speed}, {arc}, {zone}, {tool};")
+        elif m.process == "arc_end":
+            body.append(f"        ArcLEnd {name}, {s.speed}, {arc}, fine, {tool};")
+        else:
+            body.append(f"        MoveL {name}, {s.approach_speed}, fine, {tool};")
+    return [*body, "    ENDPROC", ""]
 
 
 def to_rapid(data: dict, settings: RapidSettings | None = None) -> str:

@@ -169,128 +169,162 @@ def _solve(
     p_base: np.ndarray | None = None,
 ) -> dict:
     """Solve one fixed-camera or moving-camera sub-problem; returns X, residuals, inliers, extra."""
+    if method in FLANGE_METHODS:
+        return _solve_flange(kind, P, samples, method, s, p_base)
+    return _solve_target(kind, P, samples, method, s)
+
+
+def _solve_flange(
+    kind: str, P: np.ndarray | None, samples: list[HandEyeSample], method: str, s: dict, p_base
+) -> dict:
+    """The flange methods: centres in the camera against the feature's position (known, or estimated
+    too), with the fit's confidence (leave-one-out, bootstrap)."""
     warnings: list[str] = []
     metrics: dict = {}
-    if method in FLANGE_METHODS:
-        c, keep, w, reports = _p_cam(samples, s)
-        warnings += w
-        metrics["skipped_samples"] = [i for i in range(len(samples)) if i not in keep]
-        if any(reports):
-            metrics["flange_detection"] = reports
-        diagnostics.check_finite("p_cam", c)
-        diagnostics.check_units("p_cam", c)
-        q = _point(
-            s["feature"] if kind == "fixed" else s["feature_base"],
-            "feature" if kind == "fixed" else "feature_base",
+    c, keep, w, reports = _p_cam(samples, s)
+    warnings += w
+    metrics["skipped_samples"] = [i for i in range(len(samples)) if i not in keep]
+    if any(reports):
+        metrics["flange_detection"] = reports
+    diagnostics.check_finite("p_cam", c)
+    diagnostics.check_units("p_cam", c)
+    q = _point(
+        s["feature"] if kind == "fixed" else s["feature_base"],
+        "feature" if kind == "fixed" else "feature_base",
+    )
+    if P is not None:
+        P = P[keep]
+        diagnostics.check_finite("robot poses", P)
+        diagnostics.check_units("robot positions", P[:, :3, 3])
+    dst = None
+    if isinstance(q, str):  # estimate the feature position too
+        X, res, inl, extra, refit = _fit_unknown_feature(kind, P, c, samples, keep, reports, method, s)
+    else:
+        dst = _reference_points(kind, P, q, p_base, keep)
+        X, res, inl, extra, refit = _fit_known_feature(kind, P, c, dst, method, s, metrics, warnings)
+    n_in = int(np.sum(inl))
+    warnings += _implausible_residuals(res[inl], q, kind)
+    idx_in = np.flatnonzero(inl)
+    if method != "flange-iterative" and not isinstance(q, str) and n_in >= 4:
+        conf = diagnostics.point_confidence(
+            c[idx_in], dst[idx_in], X, lambda i: refit(idx_in[i]), s["bootstrap"], s["seed"]
         )
-        if P is not None:
-            P = P[keep]
-            diagnostics.check_finite("robot poses", P)
-            diagnostics.check_units("robot positions", P[:, :3, 3])
-        if isinstance(q, str):  # estimate the feature position too
-            if method == "flange-iterative":
-                raise UsageError(
-                    "Algorithm 1 needs a known reference point", "give feature=[x,y,z] or use method 'flange'"
-                )
-            if P is None:
-                raise DataError(
-                    "estimating the feature needs robot poses, not only positions", "give T_base_flange"
-                )
-            B = P if kind == "fixed" else np.linalg.inv(P)
-            diagnostics.check_point_diversity(
-                c, max(5, s["min_samples"]), allow_coplanar=s["allow_coplanar"], what="camera points"
-            )
-            N = _normals(samples, keep, reports) if s["normal_weight"] != 1.0 else None
-            w = s["normal_weight"]
-            ff = fit_with_unknown_point(
-                c,
-                B,
-                robust=(method == "flange"),
-                n_sigma=s["n_sigma"],
-                min_threshold=s["min_threshold"],
-                rng=s["seed"],
-                normals=N,
-                normal_weight=w,
-            )
-            X, res, inl = ff.T, ff.residuals, ff.inliers
-            extra = {"feature_flange" if kind == "fixed" else "feature_base": ff.q}
+        loo = conf["leave_one_out_m"]
+        conf["leave_one_out_m"] = diagnostics.spread_back(loo, idx_in, len(samples), keep)
+        metrics["confidence"] = conf
+        if "bootstrap" in conf:
+            metrics["bootstrap"] = conf["bootstrap"]
+        warnings += diagnostics.influence_warnings(conf, [sample_id(x, k) for k, x in enumerate(samples)])
+    elif s["bootstrap"] and n_in >= 5 and method != "flange-iterative":
+        metrics["bootstrap"] = diagnostics.bootstrap(
+            lambda i: refit(idx_in[i]), n_in, s["bootstrap"], s["seed"]
+        )
+    resid_full = np.full(len(samples), np.nan)
+    inl_full = np.zeros(len(samples), bool)
+    resid_full[keep], inl_full[keep] = res, inl
+    return {
+        "X": X,
+        "residuals": resid_full,
+        "inliers": inl_full,
+        "extra": extra,
+        "metrics": metrics,
+        "warnings": warnings,
+    }
 
-            def refit(idx):
-                n_idx = None if N is None else N[idx]
-                return fit_with_unknown_point(c[idx], B[idx], robust=False, normals=n_idx, normal_weight=w).T
-        else:
-            if kind == "fixed":
-                dst = p_base[keep] if P is None else P[:, :3, :3] @ q + P[:, :3, 3]
-            else:
-                Pi = np.linalg.inv(P)
-                dst = Pi[:, :3, :3] @ q + Pi[:, :3, 3]
-            diagnostics.check_finite("reference points", dst)
-            diagnostics.check_units("reference points", dst)
-            warnings += diagnostics.check_point_diversity(
-                dst, s["min_samples"], allow_coplanar=s["allow_coplanar"]
-            )
-            full = scaled_svd_fit(c, dst)
-            metrics["svd_scale"] = full.scale
-            if abs(np.log10(max(full.scale, 1e-12))) > 1.5:
-                raise DataError(
-                    f"camera and robot points differ in scale by {full.scale:.4g}x (mixed mm and m)",
-                    "declare the units of p_cam, clouds and robot poses so all are converted to metres",
-                )
-            extra = {}
-            if method == "flange-svd":
-                X, res, inl = full.T, full.residuals, np.ones(len(c), bool)
-                metrics["reflection_guarded"] = full.reflection_guarded
-            elif method == "flange":
-                rf = robust_point_fit(
-                    c,
-                    dst,
-                    threshold=s["inlier_threshold"],
-                    n_sigma=s["n_sigma"],
-                    min_threshold=s["min_threshold"],
-                    rng=s["seed"],
-                )
-                X, res, inl = rf.T, rf.residuals, rf.inliers
-                metrics["inlier_threshold"] = rf.threshold
-                metrics["robust_sigma"] = rf.sigma
-            else:
-                X, res, inl, m2 = _algorithm1(kind, P, c, dst, s)
-                warnings += m2.pop("warnings")
-                metrics.update(m2)
 
-            def refit(idx):
-                return scaled_svd_fit(c[idx], dst[idx]).T
+def _fit_unknown_feature(
+    kind: str, P, c: np.ndarray, samples, keep: list[int], reports, method: str, s: dict
+):
+    """``X`` and the feature's position together (:func:`fit_with_unknown_point`); returns X, residuals,
+    inliers, extra and the refit used by the confidence."""
+    if method == "flange-iterative":
+        raise UsageError(
+            "Algorithm 1 needs a known reference point", "give feature=[x,y,z] or use method 'flange'"
+        )
+    if P is None:
+        raise DataError("estimating the feature needs robot poses, not only positions", "give T_base_flange")
+    B = P if kind == "fixed" else np.linalg.inv(P)
+    diagnostics.check_point_diversity(
+        c, max(5, s["min_samples"]), allow_coplanar=s["allow_coplanar"], what="camera points"
+    )
+    N = _normals(samples, keep, reports) if s["normal_weight"] != 1.0 else None
+    w = s["normal_weight"]
+    ff = fit_with_unknown_point(
+        c,
+        B,
+        robust=(method == "flange"),
+        n_sigma=s["n_sigma"],
+        min_threshold=s["min_threshold"],
+        rng=s["seed"],
+        normals=N,
+        normal_weight=w,
+    )
+    extra = {"feature_flange" if kind == "fixed" else "feature_base": ff.q}
 
-        n_in = int(np.sum(inl))
-        warnings += _implausible_residuals(res[inl], q, kind)
-        idx_in = np.flatnonzero(inl)
-        if method != "flange-iterative" and not isinstance(q, str) and n_in >= 4:
-            conf = diagnostics.point_confidence(
-                c[idx_in], dst[idx_in], X, lambda i: refit(idx_in[i]), s["bootstrap"], s["seed"]
-            )
-            loo = conf["leave_one_out_m"]
-            conf["leave_one_out_m"] = diagnostics.spread_back(loo, idx_in, len(samples), keep)
-            metrics["confidence"] = conf
-            if "bootstrap" in conf:
-                metrics["bootstrap"] = conf["bootstrap"]
-            warnings += diagnostics.influence_warnings(conf, [sample_id(x, k) for k, x in enumerate(samples)])
-        elif s["bootstrap"] and n_in >= 5 and method != "flange-iterative":
-            metrics["bootstrap"] = diagnostics.bootstrap(
-                lambda i: refit(idx_in[i]), n_in, s["bootstrap"], s["seed"]
-            )
-        resid_full = np.full(len(samples), np.nan)
-        inl_full = np.zeros(len(samples), bool)
-        resid_full[keep], inl_full[keep] = res, inl
-        return {
-            "X": X,
-            "residuals": resid_full,
-            "inliers": inl_full,
-            "extra": extra,
-            "metrics": metrics,
-            "warnings": warnings,
-        }
-    # target-based
+    def refit(idx):
+        n_idx = None if N is None else N[idx]
+        return fit_with_unknown_point(c[idx], B[idx], robust=False, normals=n_idx, normal_weight=w).T
+
+    return ff.T, ff.residuals, ff.inliers, extra, refit
+
+
+def _reference_points(kind: str, P, q: np.ndarray, p_base, keep: list[int]) -> np.ndarray:
+    """The known feature in the frame the camera points are fitted to, one per kept sample."""
+    if kind == "fixed":
+        return p_base[keep] if P is None else P[:, :3, :3] @ q + P[:, :3, 3]
+    Pi = np.linalg.inv(P)
+    return Pi[:, :3, :3] @ q + Pi[:, :3, 3]
+
+
+def _fit_known_feature(
+    kind: str, P, c: np.ndarray, dst: np.ndarray, method: str, s: dict, metrics: dict, warnings: list[str]
+):
+    """``X`` from camera points ``c`` and reference points ``dst`` by the method (scaled SVD, robust fit or
+    Algorithm 1); adds to ``metrics`` and ``warnings``. Returns X, residuals, inliers, extra, refit."""
+    diagnostics.check_finite("reference points", dst)
+    diagnostics.check_units("reference points", dst)
+    warnings += diagnostics.check_point_diversity(dst, s["min_samples"], allow_coplanar=s["allow_coplanar"])
+    full = scaled_svd_fit(c, dst)
+    metrics["svd_scale"] = full.scale
+    if abs(np.log10(max(full.scale, 1e-12))) > 1.5:
+        raise DataError(
+            f"camera and robot points differ in scale by {full.scale:.4g}x (mixed mm and m)",
+            "declare the units of p_cam, clouds and robot poses so all are converted to metres",
+        )
+    if method == "flange-svd":
+        X, res, inl = full.T, full.residuals, np.ones(len(c), bool)
+        metrics["reflection_guarded"] = full.reflection_guarded
+    elif method == "flange":
+        rf = robust_point_fit(
+            c,
+            dst,
+            threshold=s["inlier_threshold"],
+            n_sigma=s["n_sigma"],
+            min_threshold=s["min_threshold"],
+            rng=s["seed"],
+        )
+        X, res, inl = rf.T, rf.residuals, rf.inliers
+        metrics["inlier_threshold"] = rf.threshold
+        metrics["robust_sigma"] = rf.sigma
+    else:
+        X, res, inl, m2 = _algorithm1(kind, P, c, dst, s)
+        warnings += m2.pop("warnings")
+        metrics.update(m2)
+
+    def refit(idx):
+        return scaled_svd_fit(c[idx], dst[idx]).T
+
+    return X, res, inl, {}, refit
+
+
+def _solve_target(
+    kind: str, P: np.ndarray | None, samples: list[HandEyeSample], method: str, s: dict
+) -> dict:
+    """The target-based methods (a calibration board): AX=XB or AX=YB on the board's poses."""
     from weldcell.plugins.handeye.board import board_poses
 
+    warnings: list[str] = []
+    metrics: dict = {}
     C = board_poses(samples, s, metrics)
     if P is None:
         raise DataError("target-based methods need robot poses", "give T_base_flange for every sample")
@@ -469,62 +503,8 @@ def calibrate(samples, config: str | None = None, method: str = "flange", **sett
         raise DataError("no samples", "collect robot poses with flange scans or board views")
     name = CONFIGS[config][0]
     if config == "co-manipulation":
-        a = [x for x in samples if x.phase == "a"]
-        b = [x for x in samples if x.phase == "b"]
-        if not a or not b:
-            raise DataError(
-                f"co-manipulation needs phase 'a' and 'b' samples (got {len(a)} and {len(b)})",
-                "phase a: robot 1 moves, robot 2 parked; phase b: robot 1 parked, robot 2 moves (eq. 6)",
-            )
-        if method in FLANGE_METHODS and s["feature_base"] == "origin":
-            s["feature_base"] = "estimate"  # robot 2's parked flange is not at robot 1's base origin
-        ra = _solve("moving", _poses(a, "T_base_flange"), a, method, s)
-        rb = _solve("fixed", _poses(b, "T_base2_flange2"), b, method, s)
-        P1 = _poses(b, "T_base_flange")
-        if P1 is None:
-            raise DataError(
-                "phase b samples need robot 1's parked T_base_flange", "record it with every sample"
-            )
-        moved = max(rotation_angle(invert(P1[0]) @ p) for p in P1)
-        if moved > 1e-3 or np.ptp(P1[:, :3, 3], axis=0).max() > 1e-4:
-            raise DataError("robot 1 moved during phase b", "park robot 1 while robot 2 moves (eq. 6b)")
-        T_f1c, T_b2c = ra["X"], rb["X"]
-        X = P1[0] @ T_f1c @ invert(T_b2c)  # eq. 6c
-        return HandEyeResult(
-            T=X,
-            name=name,
-            config=config,
-            method=method,
-            residuals=np.r_[ra["residuals"], rb["residuals"]],
-            inliers=np.r_[ra["inliers"], rb["inliers"]],
-            metrics={"phase_a": ra["metrics"], "phase_b": rb["metrics"]},
-            settings=_public(s),
-            extra={
-                "T_flange1_camera": T_f1c,
-                "T_base2_camera": T_b2c,
-                **{f"a_{k}": v for k, v in ra["extra"].items()},
-                **{f"b_{k}": v for k, v in rb["extra"].items()},
-            },
-            warnings=ra["warnings"] + rb["warnings"],
-        )
-    G = _poses(samples, "T_base_flange")
-    if config == "eye-on-base":
-        r = _solve("fixed", G, samples, method, s, p_base=_poses(samples, "p_base"))
-    elif config == "eye-in-hand":
-        if G is None:
-            raise DataError("eye-in-hand needs T_base_flange for every sample", "record the flange poses")
-        r = _solve("moving", G, samples, method, s)
-    else:  # eye-on-arm
-        A = _poses(samples, "T_base_arm")
-        if A is None:
-            raise DataError(
-                "eye-on-arm needs T_base_arm (pose of the camera link) for every sample",
-                "read it from the robot's forward kinematics",
-            )
-        if G is not None:  # eq. 8: marker on the flange, seen from the arm link
-            r = _solve("fixed", np.einsum("nij,njk->nik", np.linalg.inv(A), G), samples, method, s)
-        else:  # eq. 7: marker fixed in the cell
-            r = _solve("moving", A, samples, method, s)
+        return _co_manipulation(samples, method, s, name)
+    r = _solve_config(config, samples, method, s)
     res = np.asarray(r["residuals"], float)
     inl = np.asarray(r["inliers"], bool)
     metrics = dict(r["metrics"])
@@ -546,6 +526,71 @@ def calibrate(samples, config: str | None = None, method: str = "flange", **sett
         extra=r["extra"],
         warnings=r["warnings"],
     )
+
+
+def _co_manipulation(samples: list[HandEyeSample], method: str, s: dict, name: str) -> HandEyeResult:
+    """Eq. 6: phase a (robot 1 moves, robot 2 parked) and phase b (robot 1 parked, robot 2 moves) solved
+    apart, then chained through robot 1's parked flange."""
+    config = "co-manipulation"
+    a = [x for x in samples if x.phase == "a"]
+    b = [x for x in samples if x.phase == "b"]
+    if not a or not b:
+        raise DataError(
+            f"co-manipulation needs phase 'a' and 'b' samples (got {len(a)} and {len(b)})",
+            "phase a: robot 1 moves, robot 2 parked; phase b: robot 1 parked, robot 2 moves (eq. 6)",
+        )
+    if method in FLANGE_METHODS and s["feature_base"] == "origin":
+        s["feature_base"] = "estimate"  # robot 2's parked flange is not at robot 1's base origin
+    ra = _solve("moving", _poses(a, "T_base_flange"), a, method, s)
+    rb = _solve("fixed", _poses(b, "T_base2_flange2"), b, method, s)
+    P1 = _poses(b, "T_base_flange")
+    if P1 is None:
+        raise DataError("phase b samples need robot 1's parked T_base_flange", "record it with every sample")
+    moved = max(rotation_angle(invert(P1[0]) @ p) for p in P1)
+    if moved > 1e-3 or np.ptp(P1[:, :3, 3], axis=0).max() > 1e-4:
+        raise DataError("robot 1 moved during phase b", "park robot 1 while robot 2 moves (eq. 6b)")
+    T_f1c, T_b2c = ra["X"], rb["X"]
+    X = P1[0] @ T_f1c @ invert(T_b2c)  # eq. 6c
+    return HandEyeResult(
+        T=X,
+        name=name,
+        config=config,
+        method=method,
+        residuals=np.r_[ra["residuals"], rb["residuals"]],
+        inliers=np.r_[ra["inliers"], rb["inliers"]],
+        metrics={"phase_a": ra["metrics"], "phase_b": rb["metrics"]},
+        settings=_public(s),
+        extra={
+            "T_flange1_camera": T_f1c,
+            "T_base2_camera": T_b2c,
+            **{f"a_{k}": v for k, v in ra["extra"].items()},
+            **{f"b_{k}": v for k, v in rb["extra"].items()},
+        },
+        warnings=ra["warnings"] + rb["warnings"],
+    )
+
+
+def _solve_config(config: str, samples: list[HandEyeSample], method: str, s: dict) -> dict:
+    """The one sub-problem of eye-on-base, eye-in-hand and eye-on-arm (eqs. 7-8)."""
+    G = _poses(samples, "T_base_flange")
+    if config == "eye-on-base":
+        r = _solve("fixed", G, samples, method, s, p_base=_poses(samples, "p_base"))
+    elif config == "eye-in-hand":
+        if G is None:
+            raise DataError("eye-in-hand needs T_base_flange for every sample", "record the flange poses")
+        r = _solve("moving", G, samples, method, s)
+    else:  # eye-on-arm
+        A = _poses(samples, "T_base_arm")
+        if A is None:
+            raise DataError(
+                "eye-on-arm needs T_base_arm (pose of the camera link) for every sample",
+                "read it from the robot's forward kinematics",
+            )
+        if G is not None:  # eq. 8: marker on the flange, seen from the arm link
+            r = _solve("fixed", np.einsum("nij,njk->nik", np.linalg.inv(A), G), samples, method, s)
+        else:  # eq. 7: marker fixed in the cell
+            r = _solve("moving", A, samples, method, s)
+    return r
 
 
 def _public(s: dict) -> dict:

@@ -84,6 +84,7 @@ def _refine_circle(xy: np.ndarray, c0: np.ndarray, r0: float, fix_radius: float 
     return sol.x[:2], float(sol.x[2])
 
 
+# parameters: the paper's RANSAC circle settings (R, e_d, e_r, k_max, ...), each a documented keyword
 def ransac_circle(
     points: np.ndarray,
     radius: float = PAPER_RADIUS,

@@ -57,111 +57,135 @@ def _translation_ls(A: np.ndarray, B: np.ndarray, R: np.ndarray) -> np.ndarray:
 def _ax_xb_numpy(A: np.ndarray, B: np.ndarray, method: str) -> np.ndarray:
     """Solve A_k X = X B_k for relative motions A (gripper) and B (camera)."""
     RA, RB = A[:, :3, :3], B[:, :3, :3]
-    if method == "tsai":  # Tsai & Lenz 1989, modified Rodrigues parameters
-        rva, rvb = Rotation.from_matrix(RA).as_rotvec(), Rotation.from_matrix(RB).as_rotvec()
-        ta, tb = np.linalg.norm(rva, axis=1), np.linalg.norm(rvb, axis=1)
-        Pa = 2 * np.sin(ta / 2)[:, None] * rva / np.maximum(ta, 1e-12)[:, None]
-        Pb = 2 * np.sin(tb / 2)[:, None] * rvb / np.maximum(tb, 1e-12)[:, None]
-        M = np.concatenate([skew(a + b) for a, b in zip(Pa, Pb, strict=True)])
-        Pp, _, _, sv = np.linalg.lstsq(M, (Pb - Pa).reshape(-1), rcond=None)
-        if sv[-1] < 1e-9 * sv[0]:
-            raise DataError(_TSAI_180, _TSAI_FIX)
-        P = 2 * Pp / np.sqrt(1 + Pp @ Pp)
-        n2 = P @ P
-        R = (1 - n2 / 2) * np.eye(3) + 0.5 * (np.outer(P, P) + np.sqrt(4 - n2) * skew(P))
-        R = orthonormalize(R)
-    elif method == "park":  # Park & Martin 1994, log map
-        al = Rotation.from_matrix(RA).as_rotvec()
-        be = Rotation.from_matrix(RB).as_rotvec()
-        M = be.T @ al
-        w, V = np.linalg.eigh(M.T @ M)
-        R = V @ np.diag(1 / np.sqrt(np.maximum(w, 1e-18))) @ V.T @ M.T
-        R = orthonormalize(R)
-    elif method == "horaud":  # Horaud & Dornaika 1995, quaternion closed form
-        qa = Rotation.from_matrix(RA).as_quat()[:, [3, 0, 1, 2]]
-        qb = Rotation.from_matrix(RB).as_quat()[:, [3, 0, 1, 2]]
-        S = np.zeros((4, 4))
-        for a, b in zip(qa, qb, strict=True):
-            if a[0] * b[0] < 0:
-                b = -b
-            La = np.array(
-                [
-                    [a[0], -a[1], -a[2], -a[3]],
-                    [a[1], a[0], -a[3], a[2]],
-                    [a[2], a[3], a[0], -a[1]],
-                    [a[3], -a[2], a[1], a[0]],
-                ]
-            )
-            Rb = np.array(
-                [
-                    [b[0], -b[1], -b[2], -b[3]],
-                    [b[1], b[0], b[3], -b[2]],
-                    [b[2], -b[3], b[0], b[1]],
-                    [b[3], b[2], -b[1], b[0]],
-                ]
-            )
-            D = La - Rb
-            S += D.T @ D
-        w, V = np.linalg.eigh(S)
-        q = V[:, 0]
-        R = Rotation.from_quat(q[[1, 2, 3, 0]]).as_matrix()
-    elif method == "andreff":  # Andreff et al. 2001, linear in vec(R) and t
-        n = len(A)
-        K = np.zeros((12 * n, 12))
-        rhs = np.zeros(12 * n)
-        for k in range(n):
-            K[12 * k : 12 * k + 9, :9] = np.eye(9) - np.kron(RA[k], RB[k])
-            K[12 * k + 9 : 12 * k + 12, :9] = np.kron(np.eye(3), B[k, :3, 3])
-            K[12 * k + 9 : 12 * k + 12, 9:] = np.eye(3) - RA[k]
-            rhs[12 * k + 9 : 12 * k + 12] = A[k, :3, 3]
-        x = np.linalg.lstsq(K, rhs, rcond=None)[0]
-        Rr = x[:9].reshape(3, 3)
-        Rr = np.sign(np.linalg.det(Rr)) * Rr / abs(np.linalg.det(Rr)) ** (1 / 3)
-        X = np.eye(4)
-        X[:3, :3], X[:3, 3] = orthonormalize(Rr), x[9:]  # t from the joint solution (eq. 10), as OpenCV
-        return X
-    elif method == "daniilidis":  # Daniilidis 1999, dual quaternions + SVD
-
-        def dq(T):
-            q = Rotation.from_matrix(T[:, :3, :3]).as_quat()[:, [3, 0, 1, 2]]
-            t = np.c_[np.zeros(len(T)), T[:, :3, 3]]
-            return q, 0.5 * _qmul(t, q)
-
-        qa, qa_d = dq(A)
-        qb, qb_d = dq(B)
-        flip = np.sum(qa * qb, axis=1) < 0  # pick the sign pair with equal scalar parts
-        qb[flip], qb_d[flip] = -qb[flip], -qb_d[flip]
-        rows = []
-        for a, ad, b, bd in zip(qa, qa_d, qb, qb_d, strict=True):
-            top = np.c_[(a - b)[1:, None], skew(a[1:] + b[1:]), np.zeros((3, 4))]
-            bot = np.c_[(ad - bd)[1:, None], skew(ad[1:] + bd[1:]), (a - b)[1:, None], skew(a[1:] + b[1:])]
-            rows.append(np.vstack([top, bot]))
-        T = np.vstack(rows)
-        _, _, Vt = np.linalg.svd(T)
-        v7, v8 = Vt[6], Vt[7]
-        u1, v1, u2, v2 = v7[:4], v7[4:], v8[:4], v8[4:]
-        a_, b_, c_ = u1 @ v1, u1 @ v2 + u2 @ v1, u2 @ v2
-        roots = np.roots([a_, b_, c_]) if abs(a_) > 1e-12 else np.array([-c_ / b_])
-        best = None
-        for s in np.real(roots):
-            val = s * s * (u1 @ u1) + 2 * s * (u1 @ u2) + u2 @ u2
-            if val > 0 and (best is None or val > best[0]):
-                best = (val, s)
-        val, s = best
-        lam2 = np.sqrt(1 / val)
-        lam1 = s * lam2
-        q = lam1 * v7 + lam2 * v8
-        qr, qd = q[:4], q[4:]
-        R = Rotation.from_quat(qr[[1, 2, 3, 0]]).as_matrix()
-        t = 2 * _qmul(qd[None], _qconj(qr)[None])[0, 1:]
-        X = np.eye(4)
-        X[:3, :3], X[:3, 3] = R, t
-        return X
-    else:
+    if method == "andreff":
+        return _andreff(A, B, RA, RB)
+    if method == "daniilidis":
+        return _daniilidis(A, B)
+    rotation = {"tsai": _rotation_tsai, "park": _rotation_park, "horaud": _rotation_horaud}.get(method)
+    if rotation is None:
         raise DataError(f"unknown AX=XB method '{method}'", f"use one of {', '.join(HAND_EYE_METHODS)}")
+    R = rotation(RA, RB)
     X = np.eye(4)
     X[:3, :3] = R
     X[:3, 3] = _translation_ls(A, B, R)
+    return X
+
+
+def _rotation_tsai(RA: np.ndarray, RB: np.ndarray) -> np.ndarray:
+    """Tsai & Lenz 1989: the rotation from modified Rodrigues parameters."""
+    rva, rvb = Rotation.from_matrix(RA).as_rotvec(), Rotation.from_matrix(RB).as_rotvec()
+    ta, tb = np.linalg.norm(rva, axis=1), np.linalg.norm(rvb, axis=1)
+    Pa = 2 * np.sin(ta / 2)[:, None] * rva / np.maximum(ta, 1e-12)[:, None]
+    Pb = 2 * np.sin(tb / 2)[:, None] * rvb / np.maximum(tb, 1e-12)[:, None]
+    M = np.concatenate([skew(a + b) for a, b in zip(Pa, Pb, strict=True)])
+    Pp, _, _, sv = np.linalg.lstsq(M, (Pb - Pa).reshape(-1), rcond=None)
+    if sv[-1] < 1e-9 * sv[0]:
+        raise DataError(_TSAI_180, _TSAI_FIX)
+    P = 2 * Pp / np.sqrt(1 + Pp @ Pp)
+    n2 = P @ P
+    R = (1 - n2 / 2) * np.eye(3) + 0.5 * (np.outer(P, P) + np.sqrt(4 - n2) * skew(P))
+    R = orthonormalize(R)
+    return R
+
+
+def _rotation_park(RA: np.ndarray, RB: np.ndarray) -> np.ndarray:
+    """Park & Martin 1994: the rotation from the log map."""
+    al = Rotation.from_matrix(RA).as_rotvec()
+    be = Rotation.from_matrix(RB).as_rotvec()
+    M = be.T @ al
+    w, V = np.linalg.eigh(M.T @ M)
+    R = V @ np.diag(1 / np.sqrt(np.maximum(w, 1e-18))) @ V.T @ M.T
+    R = orthonormalize(R)
+    return R
+
+
+def _rotation_horaud(RA: np.ndarray, RB: np.ndarray) -> np.ndarray:
+    """Horaud & Dornaika 1995: the rotation in quaternion closed form."""
+    qa = Rotation.from_matrix(RA).as_quat()[:, [3, 0, 1, 2]]
+    qb = Rotation.from_matrix(RB).as_quat()[:, [3, 0, 1, 2]]
+    S = np.zeros((4, 4))
+    for a, b in zip(qa, qb, strict=True):
+        if a[0] * b[0] < 0:
+            b = -b
+        La = np.array(
+            [
+                [a[0], -a[1], -a[2], -a[3]],
+                [a[1], a[0], -a[3], a[2]],
+                [a[2], a[3], a[0], -a[1]],
+                [a[3], -a[2], a[1], a[0]],
+            ]
+        )
+        Rb = np.array(
+            [
+                [b[0], -b[1], -b[2], -b[3]],
+                [b[1], b[0], b[3], -b[2]],
+                [b[2], -b[3], b[0], b[1]],
+                [b[3], b[2], -b[1], b[0]],
+            ]
+        )
+        D = La - Rb
+        S += D.T @ D
+    w, V = np.linalg.eigh(S)
+    q = V[:, 0]
+    R = Rotation.from_quat(q[[1, 2, 3, 0]]).as_matrix()
+    return R
+
+
+def _andreff(A: np.ndarray, B: np.ndarray, RA: np.ndarray, RB: np.ndarray) -> np.ndarray:
+    """Andreff et al. 2001: linear in vec(R) and t."""
+    n = len(A)
+    K = np.zeros((12 * n, 12))
+    rhs = np.zeros(12 * n)
+    for k in range(n):
+        K[12 * k : 12 * k + 9, :9] = np.eye(9) - np.kron(RA[k], RB[k])
+        K[12 * k + 9 : 12 * k + 12, :9] = np.kron(np.eye(3), B[k, :3, 3])
+        K[12 * k + 9 : 12 * k + 12, 9:] = np.eye(3) - RA[k]
+        rhs[12 * k + 9 : 12 * k + 12] = A[k, :3, 3]
+    x = np.linalg.lstsq(K, rhs, rcond=None)[0]
+    Rr = x[:9].reshape(3, 3)
+    Rr = np.sign(np.linalg.det(Rr)) * Rr / abs(np.linalg.det(Rr)) ** (1 / 3)
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = orthonormalize(Rr), x[9:]  # t from the joint solution (eq. 10), as OpenCV
+    return X
+
+
+def _daniilidis(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Daniilidis 1999: dual quaternions + SVD."""
+
+    def dq(T):
+        q = Rotation.from_matrix(T[:, :3, :3]).as_quat()[:, [3, 0, 1, 2]]
+        t = np.c_[np.zeros(len(T)), T[:, :3, 3]]
+        return q, 0.5 * _qmul(t, q)
+
+    qa, qa_d = dq(A)
+    qb, qb_d = dq(B)
+    flip = np.sum(qa * qb, axis=1) < 0  # pick the sign pair with equal scalar parts
+    qb[flip], qb_d[flip] = -qb[flip], -qb_d[flip]
+    rows = []
+    for a, ad, b, bd in zip(qa, qa_d, qb, qb_d, strict=True):
+        top = np.c_[(a - b)[1:, None], skew(a[1:] + b[1:]), np.zeros((3, 4))]
+        bot = np.c_[(ad - bd)[1:, None], skew(ad[1:] + bd[1:]), (a - b)[1:, None], skew(a[1:] + b[1:])]
+        rows.append(np.vstack([top, bot]))
+    T = np.vstack(rows)
+    _, _, Vt = np.linalg.svd(T)
+    v7, v8 = Vt[6], Vt[7]
+    u1, v1, u2, v2 = v7[:4], v7[4:], v8[:4], v8[4:]
+    a_, b_, c_ = u1 @ v1, u1 @ v2 + u2 @ v1, u2 @ v2
+    roots = np.roots([a_, b_, c_]) if abs(a_) > 1e-12 else np.array([-c_ / b_])
+    best = None
+    for s in np.real(roots):
+        val = s * s * (u1 @ u1) + 2 * s * (u1 @ u2) + u2 @ u2
+        if val > 0 and (best is None or val > best[0]):
+            best = (val, s)
+    val, s = best
+    lam2 = np.sqrt(1 / val)
+    lam1 = s * lam2
+    q = lam1 * v7 + lam2 * v8
+    qr, qd = q[:4], q[4:]
+    R = Rotation.from_quat(qr[[1, 2, 3, 0]]).as_matrix()
+    t = 2 * _qmul(qd[None], _qconj(qr)[None])[0, 1:]
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = R, t
     return X
 
 

@@ -382,6 +382,8 @@ def calibrate_group() -> None:
     help="Measure the flange centres from the scans even when the data stores them.",
 )
 @click.option("-q", "--quiet", is_flag=True, help="Print only the result file name.")
+# one parameter per click option (click passes them by name); long because it reads every input
+# form the offline command accepts (samples, boards, intrinsics) before calling calibrate()
 def hand_eye(
     data_dir: Path,
     output: Path,

@@ -160,6 +160,7 @@ def _wide_step(
     return best
 
 
+# parameters: Algorithm 1's documented options (keywords with the paper's defaults); long docstring
 def iterative_pool(
     src: np.ndarray,
     dst: np.ndarray,

@@ -15,24 +15,33 @@ Every capture (cloud + pose + centre) is saved at once, so an interrupted run re
 stopped. Writes ``handeye.json`` (``weldcell/hand-eye@1``), ``samples.json``
 (``weldcell/handeye-samples@1``, eye-on-base: usable offline by ``weldcell calibrate hand-eye
 RUN_DIR``), the report and, in the simulated cell, the error against the camera's true mount.
+
+Visiting a pose is :mod:`.pose_capture`; the online estimators are :mod:`.online_trackers`; this module
+plans the poses and composes the job (:func:`run`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from weldcell.hal.sim import true_camera_mount, world_of
-from weldcell.plugins.handeye.featurefit import fit_with_unknown_point, rotation_diversity, translation_sigma
+from weldcell.plugins.handeye.featurefit import rotation_diversity
+from weldcell.plugins.handeye.online_trackers import FeatureTracker, PoolTracker
+from weldcell.plugins.handeye.pose_capture import (
+    POSES,
+    check_captures,
+    public_record,
+    scan_pose,
+    verification_scan,
+)
 from weldcell.plugins.handeye.pose_plan import PoseCheck, Replacement, replace_unreachable
-from weldcell.plugins.handeye.stages import predicted_p_cam
 from weldcell.sdk.calibration import CalibrateSettings
-from weldcell.sdk.cloud import PointCloud, read_cloud, write_cloud
-from weldcell.sdk.errors import DataError, DeviceError, JobError, SafetyError
+from weldcell.sdk.errors import DataError, JobError, SafetyError
 from weldcell.sdk.geometry import T_from_rpy, frame_from_axes, invert, pose_error
 from weldcell.sdk.handeye_files import HandEyeSample, finite_json, write_result, write_samples
-from weldcell.sdk.pointfit import scaled_svd_fit
 
 # -- planning ------------------------------------------------------------------------------------
 
@@ -181,73 +190,6 @@ def feature_truth(ctx) -> np.ndarray | None:
     return (invert(world.T_world("robot.base")) @ plates[0].T_world_workpiece)[:3, 3]
 
 
-# -- motion and capture --------------------------------------------------------------------------
-
-
-def _move(robot, T_base_flange: np.ndarray) -> None:
-    """Joint move (IK through the gate) when the model is known, else a linear move; both gated."""
-    T_tcp = T_base_flange @ robot.T_flange_tcp
-    if robot.gate.model is not None:
-        robot.gate.check_point(T_tcp[:3, 3], "calibration pose")
-        q = robot.gate.solve(T_base_flange, robot.state().q, "calibration pose")
-        robot.move_joint(q)
-    else:
-        robot.move_linear(T_tcp)
-
-
-def _capture(ctx, camera, attempts: int):
-    for k in range(attempts + 1):
-        try:
-            return camera.capture()
-        except DeviceError as e:
-            if k == attempts:
-                raise JobError(
-                    f"camera: {e.message} (after {attempts} reconnection attempts)",
-                    f"captures so far are saved in {ctx.run_dir}; fix the camera and continue with "
-                    f"`weldcell run {ctx.loaded.path} --resume {ctx.run_dir}`",
-                ) from e
-            ctx.reporter.info(f"[yellow]camera: {e.message}; reconnecting ({k + 1}/{attempts})[/yellow]")
-            camera.recover()
-            camera.configure()
-            camera.activate()
-    raise AssertionError("unreachable")
-
-
-def _scan(ctx, stage, T_goal: np.ndarray, name: str, predicted, seed: int) -> dict:
-    """Move, capture, save and measure one pose; the returned record is what state.json keeps."""
-    s: CalibrateSettings = ctx.settings
-    robot, camera = ctx.device("robot"), ctx.device("camera")
-    try:
-        _move(robot, T_goal)
-    except SafetyError as e:
-        return {"status": "refused", "reason": e.message}
-    frame = _capture(ctx, camera, s.reconnects)
-    T = robot.state().T_base_flange
-    cloud = frame.to_cloud()
-    P = stage.flange.crop(cloud.points) if hasattr(stage, "flange") else stage.crop(cloud.points)
-    rec: dict = {"T_base_flange": T.tolist(), "stamp": frame.stamp, "points": int(len(P))}
-    if s.save_clouds and len(P):
-        rec["file"] = f"captures/{name}.ply"
-        write_cloud(ctx.path(rec["file"]), PointCloud(P.astype(np.float32).astype(float), frame="camera"))
-    if len(P) < s.min_points:
-        return {**rec, "status": "no-flange", "reason": f"only {len(P)} valid points in the scan"}
-    try:
-        m = stage.measure(P, predicted, seed=seed)
-    except DataError as e:
-        return {**rec, "status": "no-flange", "reason": e.message}
-    rec.update(
-        status="ok",
-        p_cam=m.p_cam.tolist(),
-        normal=m.normal.tolist(),
-        radius=float(m.report["radius"]),
-        support=int(m.report["support"]),
-    )
-    if "T_cam_flange" in m.report:
-        rec["T_cam_target"] = np.asarray(m.report["T_cam_flange"]).tolist()
-    rec["_face"] = m.face
-    return rec
-
-
 # -- the job -------------------------------------------------------------------------------------
 
 
@@ -270,141 +212,6 @@ def _config(ctx) -> str:
         "mount the camera on 'world' or 'robot.flange'; for eye-on-arm or co-manipulation, record samples "
         "and run `weldcell calibrate hand-eye DATA_DIR --config ...`",
     )
-
-
-class _PoolTracker:
-    """Eye-on-base: Algorithm 1 online (:class:`IncrementalPool`) on (centre in the camera, the
-    flange's feature in the base)."""
-
-    cost_name = "Algorithm 1 cost"
-
-    def __init__(self, pool, feature: np.ndarray) -> None:
-        self.pool, self.feature = pool, feature
-        self.c: list[np.ndarray] = []
-        self.d: list[np.ndarray] = []
-
-    def add(self, c: np.ndarray, T_base_flange: np.ndarray, normal: np.ndarray) -> None:
-        self.c.append(c)
-        self.d.append((T_base_flange @ np.r_[self.feature, 1.0])[:3])
-        self.pool.add(c, self.d[-1])
-
-    @property
-    def H(self) -> np.ndarray | None:
-        return self.pool.H
-
-    @property
-    def cost(self) -> float:
-        return self.pool.cost
-
-    @property
-    def converged(self) -> bool:
-        return self.pool.converged
-
-    def predicted(self, T_goal: np.ndarray) -> np.ndarray | None:
-        return None if self.H is None else predicted_p_cam(self.H, T_goal, self.feature)
-
-    def row(self, truth: np.ndarray) -> dict:
-        row = {} if self.H is None else {"pool_error": pose_error(self.H, truth)}
-        if len(self.c) >= 4:
-            row["all_data_error"] = pose_error(scaled_svd_fit(np.array(self.c), np.array(self.d)).T, truth)
-        return row
-
-    def metrics(self, index: list[int]) -> dict:
-        return {
-            "pool": [index[j] for j in self.pool.pool],
-            "pool_cost_m": self.pool.cost,
-            "pool_converged": self.pool.converged,
-        }
-
-    def figures(self, truth: np.ndarray, result, q_true) -> dict:
-        if self.H is None:
-            return {}
-        dt, dr = pose_error(self.H, truth)
-        return {
-            "algorithm1_error_vs_truth": {"translation_mm": dt * 1e3, "rotation_deg": float(np.degrees(dr))}
-        }
-
-
-class _FeatureTracker:
-    """Eye-in-hand: ``X c_i = inv(T_base_flange_i) q`` refit on every centre so far
-    (:func:`fit_with_unknown_point`); its cost is the fit's predicted 1-sigma translation error.
-    Scans are cropped around where the plate should appear: by the prior (nominal mount and
-    ``feature_prior``) until the fit predicts better than :attr:`TRUST` (m), then by the fit."""
-
-    cost_name = "predicted error (1 sigma)"
-    TRUST = 0.005
-
-    def __init__(self, flange, seed: int, X_prior: np.ndarray, q_prior) -> None:
-        self.flange, self.seed = flange, seed
-        self.prior = (np.asarray(X_prior, float), np.asarray(q_prior, float))
-        self.c: list[np.ndarray] = []
-        self.B: list[np.ndarray] = []
-        self.n: list[np.ndarray] = []
-        self.fit = None
-        self.cost = float("inf")
-
-    def add(self, c: np.ndarray, T_base_flange: np.ndarray, normal: np.ndarray) -> None:
-        self.c.append(c)
-        self.B.append(invert(T_base_flange))
-        self.n.append(normal)
-        C, B, fs = np.array(self.c), np.array(self.B), self.flange.s
-        try:
-            fit = fit_with_unknown_point(
-                C,
-                B,
-                len(C) >= 8,
-                fs.n_sigma,
-                fs.min_threshold,
-                rng=self.seed,
-                normals=np.array(self.n),
-                normal_weight=fs.normal_weight,
-            )
-        except DataError:  # too few centres or too little rotation so far
-            return
-        self.fit, self.cost = fit, translation_sigma(C, B, fit)
-
-    @property
-    def converged(self) -> bool:
-        return self.fit is not None and self.cost <= self.flange.e_required
-
-    def predicted(self, T_goal: np.ndarray) -> np.ndarray:
-        X, q = (self.fit.T, self.fit.q) if self.cost < self.TRUST else self.prior
-        return (invert(X) @ invert(T_goal) @ np.r_[q, 1.0])[:3]
-
-    def row(self, truth: np.ndarray) -> dict:
-        return {} if self.fit is None else {"all_data_error": pose_error(self.fit.T, truth)}
-
-    def metrics(self, index: list[int]) -> dict:
-        return {"predicted_error_m": self.cost, "converged": self.converged}
-
-    def figures(self, truth: np.ndarray, result, q_true) -> dict:
-        q = result.extra.get("feature_base")
-        if q is None or q_true is None:
-            return {}
-        return {"feature_error_mm": float(np.linalg.norm(np.asarray(q) - q_true) * 1e3)}
-
-
-def _record_public(rec: dict) -> dict:
-    return {k: v for k, v in rec.items() if not k.startswith("_")}
-
-
-def _verification(ctx, stage, T_v: np.ndarray, seed: int):
-    """The verification scan (face cloud, T_base_flange) for eq. 13: from state.json after a resume."""
-    for rec in ctx.state.captures:
-        if rec.get("kind") == "verification" and rec.get("status") == "ok" and "file" in rec:
-            P = read_cloud(ctx.run_dir / rec["file"], units="m", frame="camera", check_scale=False).points
-            m = stage.measure(P, seed=seed)
-            return m.face, np.asarray(rec["T_base_flange"], float)
-    with ctx.step("verification scan (eq. 13)", kind="checkpointed"):
-        rec = _scan(ctx, stage, T_v, "verification", None, seed)
-        ctx.state.add_capture({"kind": "verification", **_record_public(rec)})
-    if rec["status"] != "ok":
-        raise JobError(
-            f"verification scan at the box centre failed: {rec['reason']}",
-            "make sure the flange at the centre of [job.settings] box_min/box_max faces the camera "
-            "in range, or set verifier = 'consensus' in [stages.handeye.settings]",
-        )
-    return rec["_face"], np.asarray(rec["T_base_flange"], float)
 
 
 def _not_seen(config: str, n_ok: int, n_planned: int) -> JobError:
@@ -430,43 +237,26 @@ def _tracker(ctx, config: str, stage, T_v: np.ndarray | None, seed: int):
     s: CalibrateSettings = ctx.settings
     flange = getattr(stage, "flange", stage)
     if config == "eye-in-hand":
-        return _FeatureTracker(flange, seed, nominal_T_flange_camera(ctx), s.feature_prior), None
+        return FeatureTracker(flange, seed, nominal_T_flange_camera(ctx), s.feature_prior), None
     use_icp = stage.needs == "flange" and flange.s.verifier == "icp"
-    verification = _verification(ctx, flange, T_v, seed) if (use_icp and s.verification_scan) else None
+    verification = verification_scan(ctx, flange, T_v, seed) if (use_icp and s.verification_scan) else None
     if use_icp and verification is None:
         raise JobError(
             "the ICP verifier needs the verification scan",
             "set verification_scan = true, or verifier = 'consensus' in [stages.handeye.settings]",
         )
     pool = flange.pool(verification, verifier=None if use_icp else "consensus")
-    return _PoolTracker(pool, np.asarray(flange.s.feature, float)), verification
+    return PoolTracker(pool, np.asarray(flange.s.feature, float)), verification
 
 
-POSES = "calibration poses (scan + flange + fit)"
+@dataclass
+class _Visits:
+    """What the pose loop gathered: records with a centre, the estimator's track, notes, why it stopped."""
 
-
-def _check_captures(ctx) -> None:
-    """On resume: every recorded capture against its size and SHA-256. While the pose loop is open a
-    damaged one is set aside and its pose visited again (a gated free-space move, no contact); once the
-    loop had finished, a damaged capture stops the run (``--redo 'calibration poses'`` visits all again)."""
-    st = ctx.state
-    if ctx.redoing(POSES) and st.captures:
-        ctx.reporter.info(f"--redo: {len(st.captures)} earlier capture(s) set aside; all poses visited again")
-        st.discard_captures(0, "--redo calibration poses")
-        return
-    for i in reversed(range(len(st.captures))):
-        problem = st.check_capture(i)
-        if not problem:
-            continue
-        if st.step_done(POSES):
-            raise DataError(
-                f"{problem}; the calibration poses were finished, so they are not visited again "
-                "automatically",
-                f"restore the file, or visit every pose again with `{ctx.resume_command} --redo "
-                "'calibration poses'`",
-            )
-        ctx.reporter.info(f"[yellow]{problem}: that pose is visited and captured again[/yellow]")
-        st.discard_captures(i, problem, count=1)
+    ok_recs: list[dict] = field(default_factory=list)
+    track: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    stop: str = "poses exhausted"
 
 
 def run(ctx) -> dict:
@@ -477,6 +267,40 @@ def run(ctx) -> dict:
     config = _config(ctx)
     stage = ctx.stage("handeye")
     seed = ctx.profile.cell.seed if s.seed is None else s.seed
+    poses, T_v = _plan(ctx, config, seed)
+    truth = ground_truth(ctx, config)
+
+    check_captures(ctx)
+    done = {rec["index"]: rec for rec in ctx.state.captures if rec.get("kind") == "pose"}
+    if done:
+        ctx.reporter.info(f"resuming with {len(done)} pose(s) already visited")
+    tracker, verification = _tracker(ctx, config, stage, T_v, seed)
+    visits = _visit_poses(ctx, stage, poses, done, tracker, truth, seed)
+    samples, result, extra = _solve(ctx, stage, config, len(poses), tracker, verification, visits)
+    write_result(ctx.path("handeye.json"), result)
+    write_samples(ctx.path("samples.json"), samples, config, feature_base=extra.get("feature_base"))
+    figures: dict = {
+        "transform": result.name,
+        "method": result.method,
+        "samples": len(samples),
+        "inliers": int(np.sum(result.inliers)),
+        "stop": visits.stop,
+        "rms_inliers_mm": 1e3 * result.metrics.get("rms_inliers_m", float("nan")),
+    }
+    if truth is not None:
+        dt, dr = pose_error(result.T, truth)
+        figures["error_vs_truth"] = {"translation_mm": dt * 1e3, "rotation_deg": float(np.degrees(dr))}
+        figures.update(tracker.figures(truth, result, feature_truth(ctx)))
+    if ctx.profile.output.report:
+        with ctx.step("report"):
+            write_report(ctx, result, visits.track, visits.notes, truth, visits.stop)
+    return finite_json(figures)  # result.json: strict JSON (a NaN/inf becomes null with its reason)
+
+
+def _plan(ctx, config: str, seed: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The calibration poses (each reachable from the one before, with the tool, inside the box) and the
+    verification pose (eye-on-base; None eye-in-hand); replaced poses are reported and noted."""
+    s: CalibrateSettings = ctx.settings
     robot = ctx.device("robot")
     check = PoseCheck(robot.gate, robot.T_flange_tcp, robot.motion.joint_speed, robot.motion.joint_accel)
     start = robot.state().q  # the moves are checked from where the robot stands (after a resume: there)
@@ -500,33 +324,35 @@ def run(ctx) -> dict:
             f"the box centre (how much nearer): {moved}"
         )
         ctx.state.data["notes"]["replanned"] = [f"pose {r.index}: {r.reason}" for r in replaced]
-    truth = ground_truth(ctx, config)
+    return poses, T_v
 
-    _check_captures(ctx)
-    done = {rec["index"]: rec for rec in ctx.state.captures if rec.get("kind") == "pose"}
-    if done:
-        ctx.reporter.info(f"resuming with {len(done)} pose(s) already visited")
-    tracker, verification = _tracker(ctx, config, stage, T_v, seed)
-    track: list[dict] = []
-    ok_recs: list[dict] = []
+
+def _visit_poses(ctx, stage, poses, done: dict[int, dict], tracker, truth, seed: int) -> _Visits:
+    """Visit every planned pose (those ``done`` in an earlier attempt are read back), feeding each centre
+    to the online estimator, until the poses run out or (``stop_at_target``) the estimate is good enough."""
+    s: CalibrateSettings = ctx.settings
+    v = _Visits()
 
     def feed(rec: dict) -> None:
         tracker.add(*(np.asarray(rec[k], float) for k in ("p_cam", "T_base_flange", "normal")))
-        ok_recs.append(rec)
-        track.append(
-            {"n": len(ok_recs), "cost": tracker.cost, **({} if truth is None else tracker.row(truth))}
+        v.ok_recs.append(rec)
+        v.track.append(
+            {"n": len(v.ok_recs), "cost": tracker.cost, **({} if truth is None else tracker.row(truth))}
         )
 
-    notes: list[str] = []
-    stop = "poses exhausted"
+    notes = v.notes
     with ctx.step(POSES, total=len(poses), kind="checkpointed") as advance:
         for i, T_goal in enumerate(poses):
             if i in done:
                 rec = done[i]
             else:
                 predicted = tracker.predicted(T_goal)
-                rec = {"kind": "pose", "index": i, **_scan(ctx, stage, T_goal, f"{i:03d}", predicted, seed)}
-                ctx.state.add_capture(_record_public(rec))
+                rec = {
+                    "kind": "pose",
+                    "index": i,
+                    **scan_pose(ctx, stage, T_goal, f"{i:03d}", predicted, seed),
+                }
+                ctx.state.add_capture(public_record(rec))
             if rec["status"] == "ok":
                 feed(rec)
             else:
@@ -543,15 +369,25 @@ def run(ctx) -> dict:
                 elif i not in done:
                     ctx.reporter.info(f"[yellow]pose {i} {rec['status']}: {rec['reason']}[/yellow]")
             advance(
-                i + 1, len(poses), f"{len(ok_recs)} centres, {tracker.cost_name} {tracker.cost * 1e3:.3g} mm"
+                i + 1,
+                len(poses),
+                f"{len(v.ok_recs)} centres, {tracker.cost_name} {tracker.cost * 1e3:.3g} mm",
             )
-            if s.stop_at_target and tracker.converged and len(ok_recs) >= s.min_poses:
-                stop = f"{tracker.cost_name} {tracker.cost * 1e3:.3f} mm <= e_required after {len(ok_recs)} "
-                stop += "centres"
+            if s.stop_at_target and tracker.converged and len(v.ok_recs) >= s.min_poses:
+                v.stop = (
+                    f"{tracker.cost_name} {tracker.cost * 1e3:.3f} mm <= e_required after {len(v.ok_recs)} "
+                )
+                v.stop += "centres"
                 break
     ctx.state.data["notes"]["skipped"] = notes
     ctx.state.save()
+    return v
 
+
+def _solve(ctx, stage, config: str, n_planned: int, tracker, verification, v: _Visits):
+    """The stage's offline solve on every centre measured, with the online run's metrics and warnings.
+    Returns (samples, result, extra solve arguments)."""
+    notes = v.notes
     samples = [
         HandEyeSample(
             T_base_flange=np.asarray(r["T_base_flange"], float),
@@ -560,46 +396,29 @@ def run(ctx) -> dict:
             cloud=str(ctx.run_dir / r["file"]) if "file" in r else None,
             meta={"index": r["index"], "normal": r["normal"]},
         )
-        for r in ok_recs
+        for r in v.ok_recs
     ]
     if len(samples) < (4 if config == "eye-on-base" else 5):
-        raise _not_seen(config, len(samples), len(poses))
+        raise _not_seen(config, len(samples), n_planned)
     extra = {"feature_base": "estimate"} if config == "eye-in-hand" else {}
     with ctx.step(f"solve ({stage.name}, {getattr(stage.s, 'method', '')})"):
         result = stage.solve(samples, config, verification=verification, **extra)
-    index = [int(r["index"]) for r in ok_recs]
+    index = [int(r["index"]) for r in v.ok_recs]
     result.metrics["online"] = {
-        "planned": len(poses),
+        "planned": n_planned,
         "visited": sum(1 for r in ctx.state.captures if r.get("kind") == "pose"),
         "centres": len(samples),
         "refused": sum("refused" in n for n in notes),
         "no_flange": sum("no-flange" in n for n in notes),
-        "stop": stop,
+        "stop": v.stop,
         **tracker.metrics(index),
-        "cost_history_m": [t["cost"] for t in track],
+        "cost_history_m": [t["cost"] for t in v.track],
     }
     result.metrics["sample_index"] = index
-    if isinstance(tracker, _PoolTracker) and tracker.H is not None and not np.isfinite(tracker.cost):
+    if isinstance(tracker, PoolTracker) and tracker.H is not None and not np.isfinite(tracker.cost):
         result.warnings.append(
             "online Algorithm 1 never verified a pool (eq. 13 cost +inf at every pair): the flange model "
             "does not match the verification scan; the result is the offline solve's"
         )
     result.warnings += [f"skipped {n}" for n in notes]
-    write_result(ctx.path("handeye.json"), result)
-    write_samples(ctx.path("samples.json"), samples, config, feature_base=extra.get("feature_base"))
-    figures: dict = {
-        "transform": result.name,
-        "method": result.method,
-        "samples": len(samples),
-        "inliers": int(np.sum(result.inliers)),
-        "stop": stop,
-        "rms_inliers_mm": 1e3 * result.metrics.get("rms_inliers_m", float("nan")),
-    }
-    if truth is not None:
-        dt, dr = pose_error(result.T, truth)
-        figures["error_vs_truth"] = {"translation_mm": dt * 1e3, "rotation_deg": float(np.degrees(dr))}
-        figures.update(tracker.figures(truth, result, feature_truth(ctx)))
-    if ctx.profile.output.report:
-        with ctx.step("report"):
-            write_report(ctx, result, track, notes, truth, stop)
-    return finite_json(figures)  # result.json: strict JSON (a NaN/inf becomes null with its reason)
+    return samples, result, extra

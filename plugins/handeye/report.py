@@ -27,6 +27,33 @@ def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> lis
         f"configuration   {result.config}, method {result.method}",
         f"convention      p_{to} = {result.name} @ p_{frm} (metres)",
     ]
+    lines += _sample_lines(result, res, inl, idx)
+    lines += _online_lines(m)
+    q = result.extra.get("feature_base")
+    if q is not None:
+        q = np.asarray(q, float) * 1e3
+        lines.append(f"feature         in the base frame [{q[0]:.2f}, {q[1]:.2f}, {q[2]:.2f}] mm (estimated)")
+    lines += _confidence_lines(m, idx)
+    intr = m.get("intrinsics")
+    if intr:
+        how = f", RMS {intr['rms_px']:.3f} px over {intr['images']} photos" if intr.get("rms_px") else ""
+        K = intr["K"]
+        lines.append(f"intrinsics      {intr['source']}: fx {K[0][0]:.1f} fy {K[1][1]:.1f} px{how}")
+    for b in m.get("board_not_found", []):
+        lines.append(f"  no board      sample {b}")
+    if truth is not None:
+        dt, dr = pose_error(T, truth)
+        lines.append(f"vs ground truth {dt * 1e3:.3f} mm, {np.degrees(dr):.4f} deg (simulated camera mount)")
+    for w in result.warnings:
+        if not w.startswith("skipped "):
+            lines.append(f"warning         {w}")
+    return lines
+
+
+def _sample_lines(result: HandEyeResult, res: np.ndarray, inl: np.ndarray, idx: list[str]) -> list[str]:
+    """Samples kept and left out (residuals in mm), each outlier with its reason."""
+    m = result.metrics
+    lines: list[str] = []
     ok = np.isfinite(res)
     if ok.any():
         r_in = res[inl & ok]
@@ -61,6 +88,12 @@ def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> lis
                 else f"residual {res[j]:.2f} mm"
             )
             lines.append(f"  outlier       sample {idx[j] if j < len(idx) else j}: {why}")
+    return lines
+
+
+def _online_lines(m: dict) -> list[str]:
+    """Algorithm 1's pool and the online run of the ``calibrate`` job (poses visited, why it stopped)."""
+    lines: list[str] = []
     if "pool" in m and "online" not in m:
         lines.append(
             f"Algorithm 1     pool {m['pool']}, cost {m['cost'] * 1e3:.3f} mm, "
@@ -82,24 +115,6 @@ def summary_lines(result: HandEyeResult, truth: np.ndarray | None = None) -> lis
                 f"estimate        predicted error (1 sigma) {on['predicted_error_m'] * 1e3:.3f} mm; "
                 f"stopped: {on['stop']}"
             )
-    q = result.extra.get("feature_base")
-    if q is not None:
-        q = np.asarray(q, float) * 1e3
-        lines.append(f"feature         in the base frame [{q[0]:.2f}, {q[1]:.2f}, {q[2]:.2f}] mm (estimated)")
-    lines += _confidence_lines(m, idx)
-    intr = m.get("intrinsics")
-    if intr:
-        how = f", RMS {intr['rms_px']:.3f} px over {intr['images']} photos" if intr.get("rms_px") else ""
-        K = intr["K"]
-        lines.append(f"intrinsics      {intr['source']}: fx {K[0][0]:.1f} fy {K[1][1]:.1f} px{how}")
-    for b in m.get("board_not_found", []):
-        lines.append(f"  no board      sample {b}")
-    if truth is not None:
-        dt, dr = pose_error(T, truth)
-        lines.append(f"vs ground truth {dt * 1e3:.3f} mm, {np.degrees(dr):.4f} deg (simulated camera mount)")
-    for w in result.warnings:
-        if not w.startswith("skipped "):
-            lines.append(f"warning         {w}")
     return lines
 
 

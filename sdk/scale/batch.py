@@ -371,25 +371,10 @@ def run_batch(
             )
             for p in paths
         ]
-        keys = [f"weldcell-batch-{run_id}-{t.key}" for t in batch]
-        last_write = 0.0
         if progress is not None:
             progress.start(len(batch), f"{command} ({runner.description})")
         try:
-            for outcome in runner.map_unordered(run_batch_task, batch, keys):
-                task: BatchTask = outcome.item
-                rec = outcome.value if outcome.error is None else failure_record(task, _lost(outcome.error))
-                index["items"][task.input] = rec
-                if progress is not None:
-                    progress.advance(
-                        rec["status"] == "ok",
-                        rec.get("resumed", False),
-                        task.input,
-                        (rec.get("error") or {}).get("line", ""),
-                    )
-                if time.monotonic() - last_write > 1.0:
-                    _write_index(out_dir, index)
-                    last_write = time.monotonic()
+            _collect(runner, batch, index, out_dir, run_id, progress)
         finally:
             if progress is not None:
                 progress.stop()
@@ -398,6 +383,29 @@ def run_batch(
             write_batch_report(out_dir, index)
     _tidy_work(out_dir, index)
     return BatchSummary(out_dir, index, counts)
+
+
+def _collect(
+    runner, batch: list[BatchTask], index: dict[str, Any], out_dir: Path, run_id: str, progress
+) -> None:
+    """Each input's record into ``index["items"]`` as it finishes (a task the runner lost as a failure),
+    the index rewritten at most once a second so an interrupted batch keeps what finished."""
+    keys = [f"weldcell-batch-{run_id}-{t.key}" for t in batch]
+    last_write = 0.0
+    for outcome in runner.map_unordered(run_batch_task, batch, keys):
+        task: BatchTask = outcome.item
+        rec = outcome.value if outcome.error is None else failure_record(task, _lost(outcome.error))
+        index["items"][task.input] = rec
+        if progress is not None:
+            progress.advance(
+                rec["status"] == "ok",
+                rec.get("resumed", False),
+                task.input,
+                (rec.get("error") or {}).get("line", ""),
+            )
+        if time.monotonic() - last_write > 1.0:
+            _write_index(out_dir, index)
+            last_write = time.monotonic()
 
 
 def _tidy_work(out_dir: Path, index: dict[str, Any]) -> None:

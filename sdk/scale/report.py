@@ -236,6 +236,17 @@ def write_study_report(out_dir: Path, study: dict[str, Any]) -> list[Path]:
     ]
     if by:
         written.append(artifacts.write_text(out_dir / "groups.csv", _csv([by, *STAT_COLUMNS], grows)))
+    rep = _study_page(study, trials, varied, stats, srows, grows)
+    written.append(rep.write(out_dir / "index.html"))
+    return written
+
+
+def _study_page(
+    study: dict[str, Any], trials: list[dict], varied: list[str], stats: dict, srows: list, grows: list
+) -> HtmlReport:
+    """The study's HTML page: verdict, varied settings, statistics (per group), histograms, scatter
+    plots against the varied settings, and the failed trials."""
+    by, groups = study.get("by"), study.get("groups") or {}
     done = [t for t in trials if t["status"] in ("ok", "failed")]
     failed = [t for t in trials if t["status"] == "failed"]
     lost = [t for t in trials if t["status"] not in ("ok", "failed")]
@@ -298,8 +309,7 @@ def write_study_report(out_dir: Path, study: dict[str, Any]) -> list[Path]:
             [[t["trial"], t["status"], (t.get("error") or {}).get("line", "")] for t in bad],
             row_status=["bad"] * len(bad),
         )
-    written.append(rep.write(out_dir / "index.html"))
-    return written
+    return rep
 
 
 def _histogram(values: list[float], key: str, st: dict[str, float]):

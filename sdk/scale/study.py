@@ -352,6 +352,7 @@ def _prepare_function(function: str, parsed: dict[str, Distribution], seed: int,
     return draws, texts, function, trial_function.fingerprint(function), (root,) if root else ()
 
 
+# one parameter per `weldcell study` option (the command passes them by name)
 def run_study(
     profile: Path | None,
     trials: int,
@@ -368,8 +369,6 @@ def run_study(
     """Run ``trials`` seeded trials of ``profile``'s simulated job, or of the trial ``function``
     (``MODULE:FUNCTION``, see :mod:`~weldcell.sdk.scale.trial_function`); write OUT_DIR; return
     ``study.json``. ``by``: a varied key whose values group the statistics (``study["groups"]``)."""
-    from weldcell.sdk.plugins import get_plugin_manager
-    from weldcell.sdk.profile import load_profile
     from weldcell.sdk.scale.report import write_study_report
 
     if trials < 1:
@@ -382,18 +381,13 @@ def run_study(
     parsed = dict(parse_vary(v) for v in vary)
     if by is not None and by not in parsed:
         raise UsageError(f"--by {by}: not a varied key", f"give one of: {', '.join(parsed) or '(none)'}")
-    roots: tuple[str, ...] = ()
     base: Path | None = None
     if function is not None:
         draws, texts, job, base_sha, roots = _prepare_function(function, parsed, seed, trials)
         options = options.model_copy(update={"python_path": (*options.python_path, *roots)})
     else:
         base = Path(profile).resolve()
-        files = load_profile(base).files
-        draws = draw_trials(seed, trials, parsed)
-        texts = [trial_profile(base, i, s, v, parsed, reports) for i, (s, v) in enumerate(draws)]
-        job = check_profile(base, texts[0], get_plugin_manager())
-        base_sha = tasks.sha256_path(base) + "".join(artifacts.sha256_file(f) for f in files)
+        draws, texts, job, base_sha = _prepare_profile(base, parsed, seed, trials, reports)
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     run_id = f"{datetime.now(UTC).strftime('%Y%m%d%H%M%S')}-{np.random.default_rng().integers(1 << 24):06x}"
@@ -438,33 +432,7 @@ def run_study(
         if progress is not None:
             progress.start(len(batch), f"{trials} trials of {job} on {runner.description}")
         try:
-            for outcome in runner.map_unordered(
-                run_trial, batch, [f"weldcell-trial-{run_id}-{t.trial}" for t in batch]
-            ):
-                t: TrialTask = outcome.item
-                rec = outcome.value
-                if outcome.error is not None:
-                    why = tasks.lost_reason(
-                        tasks.read_attempts(
-                            out_dir / tasks.WORK / f"trial-{t.trial:05d}" / "attempts.jsonl", run_id
-                        )
-                    )
-                    why = why or f"{type(outcome.error).__name__}: {outcome.error}"
-                    rec = {
-                        "trial": t.trial,
-                        "seed": t.seed,
-                        "values": t.values,
-                        "status": "lost",
-                        "error": {"type": "TaskLost", "message": why, "line": why},
-                    }
-                study["trials"][str(t.trial)] = rec
-                if progress is not None:
-                    progress.advance(
-                        rec["status"] == "ok",
-                        rec.get("resumed", False),
-                        f"trial {t.trial}",
-                        (rec.get("error") or {}).get("line", ""),
-                    )
+            _collect(runner, batch, study, out_dir, run_id, progress)
         finally:
             if progress is not None:
                 progress.stop()
@@ -474,6 +442,50 @@ def run_study(
             artifacts.write_json(out_dir / "study.json", study)
             write_study_report(out_dir, study)
     return study
+
+
+def _prepare_profile(base: Path, parsed: dict, seed: int, trials: int, reports: bool):
+    """The seeded draws, each trial's profile text, the job's name and the hash of the base profile and
+    every file it extends (a changed file is a new study)."""
+    from weldcell.sdk.plugins import get_plugin_manager
+    from weldcell.sdk.profile import load_profile
+
+    files = load_profile(base).files
+    draws = draw_trials(seed, trials, parsed)
+    texts = [trial_profile(base, i, s, v, parsed, reports) for i, (s, v) in enumerate(draws)]
+    job = check_profile(base, texts[0], get_plugin_manager())
+    base_sha = tasks.sha256_path(base) + "".join(artifacts.sha256_file(f) for f in files)
+    return draws, texts, job, base_sha
+
+
+def _collect(runner, batch: list[TrialTask], study: dict, out_dir: Path, run_id: str, progress) -> None:
+    """Each trial's record into ``study["trials"]`` as it finishes; a task the runner lost is recorded
+    with the reason its attempts left (``status: lost``)."""
+    for outcome in runner.map_unordered(
+        run_trial, batch, [f"weldcell-trial-{run_id}-{t.trial}" for t in batch]
+    ):
+        t: TrialTask = outcome.item
+        rec = outcome.value
+        if outcome.error is not None:
+            why = tasks.lost_reason(
+                tasks.read_attempts(out_dir / tasks.WORK / f"trial-{t.trial:05d}" / "attempts.jsonl", run_id)
+            )
+            why = why or f"{type(outcome.error).__name__}: {outcome.error}"
+            rec = {
+                "trial": t.trial,
+                "seed": t.seed,
+                "values": t.values,
+                "status": "lost",
+                "error": {"type": "TaskLost", "message": why, "line": why},
+            }
+        study["trials"][str(t.trial)] = rec
+        if progress is not None:
+            progress.advance(
+                rec["status"] == "ok",
+                rec.get("resumed", False),
+                f"trial {t.trial}",
+                (rec.get("error") or {}).get("line", ""),
+            )
 
 
 @contextlib.contextmanager
