@@ -19,7 +19,10 @@ shadows. Timed, median of ``--repeats`` runs after one warm-up:
   chaining) + torch path (eqs. 18-19) on the region-of-interest cloud -- what the paper's Table II
   times ("denoise + seam + path");
 * ``capture-to-path``: the above plus depth image -> cloud, eq. 1 into the base frame and the ROI crop
-  that drops the fixture plate (everything after the frame arrives).
+  that drops the fixture plate (everything after the frame arrives);
+* ``Open3D normals``: Open3D's ``estimate_normals`` (30 nearest neighbours) on the same ROI cloud, timed
+  right after each plan run (issue 16: the host-independent figure is ``plan / normals``, a floor no
+  seam method on that cloud can go under).
 
 Speed = found seam length / time. Accuracy columns use the job's ``evaluate()`` (eq. 21 F1, eq. 22
 RMSE of the seam frames). Prints a markdown table; nothing is asserted. Uses 2 threads (KD-tree
@@ -115,13 +118,15 @@ def run(placement: str, preset: str, distance: float, repeats: int, seed: int) -
         ex = seam_stage(clean)
         path = planner(ex.seams)
         t2 = time.perf_counter()
-        return t2 - t0, t2 - t1, n_capture, len(P), len(clean), ex, path
+        floor = open3d_normals_time(P)
+        return t2 - t0, t2 - t1, n_capture, len(P), len(clean), ex, path, floor
 
     capture_to_path()  # warm-up
     runs = [capture_to_path() for _ in range(repeats)]
     total = statistics.median(r[0] for r in runs)
     plan = statistics.median(r[1] for r in runs)
-    _, _, n_cap, n_roi, n_clean, ex, path = runs[-1]
+    floor = statistics.median(r[7] for r in runs)
+    _, _, n_cap, n_roi, n_clean, ex, path, _ = runs[-1]
     seam = wp.seams_in_world()[0]
     m = evaluate(path, [("v-groove", seam)], 0.015)
     length = sum(s.length for s in ex.seams)
@@ -134,11 +139,22 @@ def run(placement: str, preset: str, distance: float, repeats: int, seed: int) -
         length_mm=length * 1000,
         plan_ms=plan * 1000,
         total_ms=total * 1000,
+        o3d_normals_ms=floor * 1000,
+        ratio=plan / floor if floor > 0 else float("nan"),
         speed=length * 1000 / plan if plan > 0 else 0.0,
         f1=m.get("f1", {}).get("f1", 0.0),
         t_mm=m.get("translation_rmse_mm", float("nan")),
         r_deg=m.get("rotation_rmse_deg", float("nan")),
     )
+
+
+def open3d_normals_time(P: np.ndarray) -> float:
+    """Seconds Open3D takes to estimate normals (its default 30 nearest neighbours, its own threads) on the
+    ROI cloud ``P``, from the numpy array on: the floor any seam method on that cloud stands on."""
+    t0 = time.perf_counter()
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pc.estimate_normals()
+    return time.perf_counter() - t0
 
 
 def trial(values: dict[str, Any], seed: int, trial: int) -> dict:
@@ -206,15 +222,16 @@ def main() -> None:
     print()
     print(
         "| placement | points (frame / ROI / denoised) | seams | seam mm | F1 | RMSE mm / deg | "
-        "plan ms | capture-to-path ms | mm/s | paper ms | paper mm/s |"
+        "plan ms | capture-to-path ms | mm/s | paper ms | paper mm/s | Open3D normals ms | plan / normals |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         pm, ps = PAPER[r["placement"]]
         print(
             f"| {r['placement']} | {r['n_capture']} / {r['n_roi']} / {r['n_clean']} | {r['seams']} | "
             f"{r['length_mm']:.1f} | {r['f1']:.3f} | {r['t_mm']:.2f} / {r['r_deg']:.2f} | "
-            f"{r['plan_ms']:.0f} | {r['total_ms']:.0f} | {r['speed']:.0f} | {pm} | {ps} |"
+            f"{r['plan_ms']:.0f} | {r['total_ms']:.0f} | {r['speed']:.0f} | {pm} | {ps} | "
+            f"{r['o3d_normals_ms']:.0f} | {r['ratio']:.2f} |"
         )
 
 
