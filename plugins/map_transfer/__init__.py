@@ -16,7 +16,8 @@ def weldcell_register_stages(register) -> None:
         StageSpec(
             name="map-transfer.zmq",
             kind="map-transfer",
-            summary="local maps in weldcell/map-segments@1 (Draco/PLY), served and fetched over ZeroMQ",
+            summary="local maps in weldcell/map-segments@1 (quantised, Draco, PLY) served and fetched "
+            "over ZeroMQ",
             settings=stage.TransferSettings,
             factory=stage.MapTransfer,
             requires={"zmq": "transfer", "DracoPy": "transfer"},

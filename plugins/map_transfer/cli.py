@@ -38,7 +38,13 @@ def token_from_env(name: str | None) -> str | None:
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="segmented map folder")
 @click.option("--max-distance", default=15.0, show_default=True, help="travel per local map [m]")
 @click.option("--max-points", default=500_000, show_default=True, help="points per local map")
-@click.option("--encoding", type=click.Choice(["draco", "ply"]), default="draco", show_default=True)
+@click.option(
+    "--encoding",
+    type=click.Choice(["quantised", "draco", "ply"]),
+    default="quantised",
+    show_default=True,
+    help="quantised: <= --max-error-mm grid, deflated (fast to decode); draco: DracoPy; ply: lossless",
+)
 @click.option(
     "--units",
     type=click.Choice(["m", "cm", "mm"]),
@@ -46,7 +52,7 @@ def token_from_env(name: str | None) -> str | None:
     show_default=True,
     help="units of CLOUD's coordinates",
 )
-@click.option("--max-error-mm", default=1.0, show_default=True, help="largest Draco quantisation error [mm]")
+@click.option("--max-error-mm", default=1.0, show_default=True, help="largest quantisation error [mm]")
 def segment_command(
     cloud, trajectory, output, max_distance, max_points, encoding, units, max_error_mm
 ) -> None:

@@ -1,4 +1,6 @@
-"""Segment encodings: plain binary PLY (lossless) and Draco (quantised, made for point clouds).
+"""Segment encodings: ``quantised`` (the default: a <= 1 mm grid, delta-coded and deflated, see
+:mod:`~weldcell.plugins.map_transfer.quantised` for why it replaced Draco as default), plain binary PLY
+(lossless) and Draco (quantised, made for point clouds).
 
 Draco quantises each coordinate on a grid of ``2**bits - 1`` steps over the segment's largest extent
 (``range``), so the error of one coordinate is at most half a step and the 3-D error at most
@@ -17,12 +19,14 @@ from pathlib import Path
 import numpy as np
 from weldcell.sdk.errors import DataError, MissingExtraError
 
-ENCODINGS = ("draco", "ply")
+ENCODINGS = ("quantised", "draco", "ply")
+SUFFIX = {"quantised": "qpc", "draco": "drc", "ply": "ply"}
 
 
 @dataclass
 class Quantisation:
-    """What Draco's quantisation did to one segment (all lengths in metres)."""
+    """What the quantisation (Draco's or ours) did to one segment (all lengths in metres); ``bits`` per
+    coordinate over the segment's largest extent."""
 
     bits: int
     step: float
@@ -139,8 +143,30 @@ def _decode_own_ply(data: bytes) -> tuple[np.ndarray, np.ndarray | None] | None:
     return None
 
 
+def encode_quantised(points: np.ndarray, colors: np.ndarray | None, tolerance: float):
+    """``quantised`` bytes of a cloud and the quantisation, its error measured on the decoded points."""
+    from weldcell.plugins.map_transfer.quantised import decode_quantised
+    from weldcell.plugins.map_transfer.quantised import encode_quantised as enc
+
+    data, order, step = enc(points, colors, tolerance)
+    back, _ = decode_quantised(data)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    err = np.linalg.norm(back - pts[order], axis=1) if len(pts) else np.zeros(1)
+    extent = float(np.max(pts.max(axis=0) - pts.min(axis=0))) if len(pts) else 0.0
+    bits = max(1, math.ceil(math.log2(extent / step + 1.0))) if extent > 0 else 1
+    rms = float(np.sqrt(np.mean(err**2)))
+    q = Quantisation(bits, step, math.sqrt(3.0) / 2.0 * step, float(err.max()), rms)
+    if q.max_error > tolerance * (1.0 + 1e-9):  # the grid bounds it; a failure here is a bug, not data
+        raise DataError(f"quantisation error {q.max_error} m exceeds {tolerance} m", "encode as PLY instead")
+    return data, q
+
+
 def decode_file(path: Path, encoding: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """Points and colours of one segment file in its own frame."""
+    """Points and colours of one segment file in its own frame (``quantised``: sorted by grid cell)."""
+    if encoding == "quantised":
+        from weldcell.plugins.map_transfer.quantised import decode_quantised
+
+        return decode_quantised(Path(path).read_bytes())
     if encoding == "draco":
         return decode_draco(Path(path).read_bytes())
     if encoding == "ply":
@@ -156,6 +182,8 @@ def decode_file(path: Path, encoding: str) -> tuple[np.ndarray, np.ndarray | Non
 
 def encode(points: np.ndarray, colors: np.ndarray | None, encoding: str, tolerance: float):
     """(bytes, Quantisation or None) of a segment in ``encoding``."""
+    if encoding == "quantised":
+        return encode_quantised(points, colors, tolerance)
     if encoding == "draco":
         return encode_draco(points, colors, tolerance)
     if encoding == "ply":

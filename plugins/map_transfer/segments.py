@@ -11,7 +11,7 @@ Folder::
 
     MAP_DIR/
       manifest.json     weldcell/map-segments@1 (below); rewritten atomically after each segment
-      seg_000000.drc    one file per segment (Draco) or seg_000000.ply (binary PLY)
+      seg_000000.qpc    one file per segment: quantised (.qpc, default), Draco (.drc) or binary PLY (.ply)
 
 Manifest: ``{"schema", "frame": "world", "units": "m", "complete": bool, "settings": {...},
 "segments": [{"id", "file", "encoding", "points", "bytes", "sha256", "T_world_segment" (4x4),
@@ -47,9 +47,13 @@ class SegmentSettings(Settings):
         15.0, gt=0, description="new local map after this travel [m] (paper: 15-20 m)"
     )
     max_points: int = Field(500_000, ge=1, description="new local map beyond this many points (Table II)")
-    encoding: Literal["draco", "ply"] = Field("draco", description="segment file encoding")
+    encoding: Literal["quantised", "draco", "ply"] = Field(
+        "quantised",
+        description="segment file encoding: quantised (<= max_error grid, deflated; fast to decode), draco "
+        "(<= max_error, DracoPy) or ply (lossless float32)",
+    )
     max_error: Length = Field(
-        0.001, gt=0, description="largest geometric error Draco's quantisation may add [m]"
+        0.001, gt=0, description="largest geometric error the quantisation (quantised, draco) may add [m]"
     )
 
 
@@ -215,7 +219,7 @@ class SegmentWriter:
         ``extra`` adds keys to the entry (e.g. the key frames' poses and the hand-over of a live map)."""
         s = self.settings
         data, quant = codec.encode(seg.points, seg.colors, s.encoding, s.max_error)
-        name = f"seg_{seg.id:06d}.{'drc' if s.encoding == 'draco' else 'ply'}"
+        name = f"seg_{seg.id:06d}.{codec.SUFFIX[s.encoding]}"
         artifacts.write_bytes(self.root / name, data)
         w = seg.world_points()
         entry = {

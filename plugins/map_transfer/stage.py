@@ -29,8 +29,12 @@ from weldcell.sdk.units import Duration, Length
 class TransferSettings(Settings):
     """Encoding of the local maps and the loopback/robot endpoint they are served on."""
 
-    encoding: Literal["draco", "ply"] = Field("draco", description="segment file encoding")
-    max_error: Length = Field(0.001, gt=0, description="largest Draco quantisation error [m]")
+    encoding: Literal["quantised", "draco", "ply"] = Field(
+        "quantised",
+        description="segment file encoding: quantised (<= max_error grid, deflated; fast to decode), draco "
+        "(<= max_error, DracoPy) or ply (lossless float32)",
+    )
+    max_error: Length = Field(0.001, gt=0, description="largest quantisation error (quantised, draco) [m]")
     bind: str = Field(
         "tcp://127.0.0.1:*", description="ZeroMQ endpoint of the map server (loopback, any free port)"
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 from pydantic import Field
+from weldcell.plugins.mapping.prior_map import PriorMapRef
 from weldcell.plugins.mapping.segmentation import SegmentationSettings
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Length, Speed
@@ -120,6 +121,11 @@ class RevisitSettings(Settings):
         5.0, gt=0, description="free-space evidence only from depth up to this range (noise ~ z^2) [m]"
     )
     min_views: int = Field(3, ge=1, description="key frames that must see through a point to call it changed")
+    prior_map: PriorMapRef = Field(
+        None,
+        description="hardware: this run is the second visit; relocalize on and update this prior map: a "
+        "map folder (RUN/map of an earlier run, or RUN) or a map server tcp://HOST:PORT; checked at load",
+    )
 
 
 class MapJobSettings(Settings):

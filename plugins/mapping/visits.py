@@ -131,10 +131,13 @@ def second_visit(ctx, rig, tr1, figures1: dict) -> dict:
     from weldcell.plugins.mapping.job import Tracking, _world_heading, drive
 
     s = ctx.settings
+    if s.revisit.prior_map is not None:  # hardware (or a later simulated run): this run is the new visit
+        return {"visit2": on_prior_map(ctx, tr1, figures1)}
     if rig.site is None:
         raise DataError(
             "the second visit drives the simulated site only",
-            "on hardware run the job again with the robot and relocalize with `weldcell map relocalize`",
+            "on hardware set revisit.prior_map to the first run's map folder (or its map server) in the "
+            "profile of the second run",
         )
     out: dict = {}
     with ctx.step("second visit: drive"):
@@ -182,6 +185,108 @@ def second_visit(ctx, rig, tr1, figures1: dict) -> dict:
         out["map_update"] = "not done: the relocalization failed (the prior map is left unchanged)"
     _plots(ctx, tr1, tr2, res, out)
     return {"visit2": out}
+
+
+def _prior_visit(folder) -> tuple[object, float | None]:
+    """The prior visit as far as :func:`priors` needs it (GNSS frame, key-frame camera poses) and its
+    magnetic heading, from the folder's key-frame index, or from its manifest's key-frame poses when it
+    holds local maps only (a fetched map)."""
+    from types import SimpleNamespace
+
+    from weldcell.sdk import artifacts
+
+    meta, cams = {}, []
+    if (folder / "keyframes.json").is_file():
+        meta = artifacts.read_json(folder / "keyframes.json")
+        cams = [np.asarray(k["T_world_cam"], float) for k in meta.get("keyframes", [])]
+    else:
+        for e in artifacts.read_json(folder / "manifest.json")["segments"]:
+            T = np.asarray(e["T_world_segment"], float)
+            cams += [T @ np.asarray(v, float) for v in (e.get("keyframe_poses") or {}).values()]
+    enu = meta.get("T_world_enu")
+    est = SimpleNamespace(
+        T_world_enu=None if enu is None else np.asarray(enu, float),
+        T_imu_cam=np.eye(4),
+        keyframes=[SimpleNamespace(T_world_imu=T) for T in cams],
+    )
+    return SimpleNamespace(estimator=est), meta.get("magnetic_heading_rad")
+
+
+def on_prior_map(ctx, tr, figures: dict) -> dict:
+    """This run as the second visit of ``revisit.prior_map`` (§II-E on hardware): its map relocalized on the
+    prior map with the magnetometer / GNSS / key-frame priors both runs recorded, then the prior map
+    updated into ``RUN/map_versions`` (see :mod:`~weldcell.plugins.mapping.prior_map`)."""
+    from weldcell.plugins.mapping.job import _world_heading
+    from weldcell.plugins.mapping.map_update import prior_points
+    from weldcell.plugins.mapping.prior_map import resolve_prior_map
+
+    out: dict = {"prior_map": str(ctx.settings.revisit.prior_map)}
+    with ctx.step("relocalize on the prior map"):
+        folder = resolve_prior_map(ctx)
+        stage = ctx.stage("relocalizer")
+        prior = stage.prepare(prior_points(ctx.stage("transfer"), folder)[0])
+        cur, cur_col = _visit_map(ctx, tr)
+        tr_prior, heading1 = _prior_visit(folder)
+        heading2 = figures.get("world_heading_rad", _world_heading(tr))
+        pri, notes = priors(ctx, tr_prior, tr, heading1, heading2)
+        if not tr_prior.estimator.keyframes:
+            pri.pop("keyframe_positions", None)
+            pri.pop("current_keyframes", None)
+            notes.append("the prior map has no key-frame poses: no key-frame sampling")
+        res = stage(prior, cur, **pri)
+        doc = res.to_json()
+        doc["notes"] = list(doc.get("notes", [])) + notes
+        ctx.write_json("visit2/relocalization.json", doc)
+        out.update(
+            keyframes=len(tr.estimator.keyframes),
+            relocalization_status=res.status,
+            relocalization_overlap=float(res.overlap),
+            relocalization_confidence=float(res.confidence),
+            relocalization_s=float(res.seconds),
+            relocalization_priors=", ".join(res.priors_used),
+            prepare_s=float(prior.prepare_seconds),
+        )
+    if res.status != "ok":
+        out["relocalization_reason"] = res.reason
+        out["map_update"] = "not done: the relocalization failed (the prior map is left unchanged)"
+        return out
+    with ctx.step("map update of the prior map"):
+        out.update(_update_prior(ctx, tr, folder, res, cur, cur_col, doc))
+    return out
+
+
+def _update_prior(ctx, tr, folder, res, cur, cur_col, doc) -> dict:
+    from weldcell.plugins.mapping.map_update import prior_points
+
+    s, transfer = ctx.settings, ctx.stage("transfer")
+    vroot = ctx.path("map_versions") / ""
+    start_versions(transfer, folder, vroot)
+    p1, _ = prior_points(transfer, vroot / "v1")
+    T = res.T_prior_current
+    cur_p = cur @ T[:3, :3].T + T[:3, 3]
+    out: dict = {}
+    views1 = []
+    if (folder / "keyframes.json").is_file():
+        views1 = _views(KeyFrameStore.load(folder), np.eye(4))
+    else:
+        out["map_update_note"] = "the prior map has no key frames: removals only, new structure is extension"
+    r = s.revisit
+    ch = detect_changes(
+        p1,
+        cur_p,
+        views1,
+        _views(tr.store, T),
+        r.change_distance,
+        r.min_change_points,
+        min(s.map.max_depth, r.change_max_depth),
+        r.min_views,
+    )
+    entry = write_version(transfer, vroot, ch, cur_p, cur_col, doc)
+    changes = {"schema": "weldcell/map-changes@1", "frame": "prior map", "units": "m"}
+    ctx.write_json("visit2/changes.json", {**changes, "changes": entry["changes"]})
+    keys = ("changed_segments", "unchanged_segments", "changes", "removed_points", "added_points")
+    out.update({k: entry[k] for k in (*keys, "extension_points")}, map_version=entry["version"])
+    return out
 
 
 def _prior_points(ctx) -> np.ndarray:

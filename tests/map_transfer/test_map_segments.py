@@ -118,3 +118,63 @@ def test_ply_segments_read_back_by_the_sdk_reader(tmp_path, small_map):
     (tmp_path / "cut.ply").write_bytes((tmp_path / e["file"]).read_bytes()[:-10])
     with pytest.raises(DataError):
         codec.decode_file(tmp_path / "cut.ply", "ply")
+
+
+def test_quantised_is_the_default_within_one_millimetre_and_smaller_than_draco(small_map, tmp_path):
+    pts, col, traj = small_map
+    assert SegmentSettings().encoding == "quantised"
+    m = write_segmented_map(tmp_path / "q", pts, col, traj, SegmentSettings())
+    assert all(e["file"].endswith(".qpc") and e["encoding"] == "quantised" for e in m["segments"])
+    for e in m["segments"]:
+        q = e["quantisation"]
+        assert 0 < q["rms_error_m"] <= q["max_error_m"] <= q["bound_m"] <= 1e-3
+    back, bcol = load_world_cloud(tmp_path / "q")
+    # measured independently of the writer (the points come back sorted within each local map): every
+    # original point has a decoded one within 1 mm in its local map, and the counts are the same
+    from scipy.spatial import cKDTree
+
+    segs = [read_segment_points(tmp_path / "q", e) for e in m["segments"]]
+    assert sum(len(s[0]) for s in segs) == len(pts) == len(back)
+    for (local, T), idx in zip(segs, _segment_indices(pts, traj), strict=True):
+        orig = (pts[idx] - T[:3, 3]) @ T[:3, :3]  # the original points in the local map's frame
+        assert len(local) == len(idx) and cKDTree(local).query(orig)[0].max() <= 1e-3
+    assert np.allclose(np.sort(bcol, axis=0), np.sort(col, axis=0), atol=0.5 / 255 + 1e-9)
+    d = write_segmented_map(tmp_path / "d", pts, col, traj, SegmentSettings(encoding="draco"))
+    assert sum(e["bytes"] for e in m["segments"]) < sum(e["bytes"] for e in d["segments"])
+
+
+def read_segment_points(root, e):
+    local, _ = codec.decode_file(root / e["file"], e["encoding"])
+    return local, np.array(e["T_world_segment"])
+
+
+def test_quantised_decoded_points_encode_again_to_the_same_bytes(small_map):
+    pts, col, _ = small_map
+    data, q = codec.encode(pts[:20_000], col[:20_000], "quantised", 1e-3)
+    from weldcell.plugins.map_transfer.quantised import decode_quantised
+
+    p2, c2 = decode_quantised(data)
+    again, q2 = codec.encode(p2, c2, "quantised", 1e-3)
+    assert again == data and q2.max_error == 0.0  # a new map version moves unchanged points by 0
+    far = pts[:1000] + [5000.0, -3000.0, 20.0]  # far from the origin: only the deltas' width matters
+    data, q = codec.encode(far, None, "quantised", 5e-4)
+    back, none = decode_quantised(data)
+    assert none is None and q.max_error <= 5e-4
+    from scipy.spatial import cKDTree
+
+    assert len(back) == len(far) and cKDTree(back).query(far)[0].max() <= 5e-4
+    for n in (0, 1):
+        back, _ = decode_quantised(codec.encode(pts[:n], col[:n], "quantised", 1e-3)[0])
+        assert back.shape == (n, 3)
+
+
+def test_damaged_quantised_segment_is_a_clear_error(small_map, tmp_path):
+    pts, col, _ = small_map
+    data, _ = codec.encode(pts[:5000], col[:5000], "quantised", 1e-3)
+    bad = bytearray(data)
+    bad[len(bad) // 2] ^= 0xFF
+    for name, blob in (("flip", bytes(bad)), ("cut", data[:-100]), ("head", b"PLY\n" + data[4:])):
+        (tmp_path / name).write_bytes(blob)
+        with pytest.raises(DataError) as e:
+            codec.decode_file(tmp_path / name, "quantised")
+        assert "fetch" in e.value.fix

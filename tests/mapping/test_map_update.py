@@ -86,7 +86,7 @@ def _segmented(root, prior, transfer):
     w.finish()
 
 
-@pytest.mark.parametrize("encoding", ["draco", "ply"])
+@pytest.mark.parametrize("encoding", ["quantised", "draco", "ply"])
 def test_new_version_keeps_unchanged_segments_bit_identical(scene, tmp_path, encoding):
     prior, current, vp, vc, _ = scene
     transfer = MapTransfer(TransferSettings(encoding=encoding))
