@@ -4,7 +4,8 @@ Run:  .venv/bin/python benchmarks/localize_speed.py [--trials 5] [--repeats 3]
 
 For each workpiece (ladder, truss, spaceframe) and inspection plan (zig-zag, spiral), ``--trials`` placements
 of the Table 1 protocol (benchmarks/localize_table1.py: ±15 mm / ±20°, members off CAD by up to 2 mm,
-the optoNCDT 1402 model); on each one's edge points:
+the optoNCDT 1402 model), scanned along ``synth``'s plans; the edge extraction of each scan is timed
+(readings per CPU second, median of ``--repeats`` runs); on each one's edge points:
 
 * ``paper7 serial``: the paper's method, 7 seeds of Powell on eq. (3), in this process (no pool);
 * ``paper7 auto``: the same with the process pool when it pays (``Localization.parallel``);
@@ -72,14 +73,23 @@ def reference(tpl, xy) -> tuple[np.ndarray, float]:
     return np.asarray(best.x) * unit, float(best.fun)
 
 
-def placements(tpl, lines, n, rng, sensor):
+def placements(tpl, lines, n, rng, sensor, rates: list[float], repeats: int = 3):
+    """The edge points of ``n`` placements; appends each scan's edge-extraction rate (readings per CPU
+    second, the median of ``repeats`` runs) to ``rates``."""
     for _ in range(n):
         pose = np.array(
             [rng.uniform(-0.015, 0.015), rng.uniform(-0.015, 0.015), math.radians(rng.uniform(-20, 20))]
         )
         var = member_variations(tpl, rng, 2e-3)
         placed = transform_template(apply_variations(tpl, var), pose, tpl.centroid)
-        yield extract_edges(scan_lines(placed, lines, rng, sensor), tpl)
+        scan = scan_lines(placed, lines, rng, sensor)
+        cpu = []
+        for _ in range(repeats):
+            c0 = time.process_time()
+            edges = extract_edges(scan, tpl)
+            cpu.append(time.process_time() - c0)
+        rates.append(len(scan) / max(statistics.median(cpu), 1e-9))
+        yield edges
 
 
 def main() -> None:
@@ -91,13 +101,13 @@ def main() -> None:
     args = ap.parse_args()
     sensor = SensorModel()
     times = {k: {"cpu": [], "wall": [], "search_cpu": []} for k in CASES}
-    dev, rel, npts, loads, par = [], [], [], [], set()
+    dev, rel, npts, loads, par, rates = [], [], [], [], set(), []
     for wp in WORKPIECES:
         tpl = make_workpiece(wp)
         for plan in ("zigzag", "spiral"):
             lines = zigzag_plan(tpl, 0.02, 0.2) if plan == "zigzag" else spiral_plan(tpl, pitch=0.012)
             rng = np.random.default_rng(args.seed)
-            for edges in placements(tpl, lines, args.trials, rng, sensor):
+            for edges in placements(tpl, lines, args.trials, rng, sensor, rates, args.repeats):
                 npts.append(len(edges))
                 localize(tpl, edges, CASES["robust"])  # warm-up: the field of this template, once
                 for name, s in CASES.items():
@@ -133,6 +143,10 @@ def main() -> None:
             f"| {statistics.median(t['search_cpu']) * 1e3:.1f} |"
         )
     print(f"\npaper7 auto ran: {', '.join(sorted(par))}")
+    print(
+        f"\nedge extraction ({len(rates)} whole scans): median {statistics.median(rates) / 1e6:.2f} M "
+        f"readings per CPU second (min {min(rates) / 1e6:.2f} M)"
+    )
     if dev:
         dev = np.array(dev)
         print(

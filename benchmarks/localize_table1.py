@@ -1,7 +1,10 @@
 """Paper 002, Table 1: localization accuracy and failure rate over placement trials, via `weldcell study`.
 
 Run:  .venv/bin/python benchmarks/localize_table1.py [--trials 150] [--methods robust,paper7,paper1]
-          [--workpieces ladder,truss,spaceframe] [--plans zigzag,spiral] [--workers N] [-o OUT_DIR]
+          [--workpieces ladder,truss,spaceframe] [--plans zigzag,spiral] [--workers N] [-o OUT_DIR [--reuse]]
+
+(``--reuse``: summarize the rows whose study.json is already in OUT_DIR -- e.g. rows run by several
+processes into one folder -- instead of running them.)
 
 Every row (workpiece x plan x method) is one study of ``profiles/cell3-localize-table1-sim.toml`` (the
 ``localize-and-weld`` job with ``scope = "localize"``: template, the simulated worker's placement, the job's
@@ -26,17 +29,23 @@ spiral alone (``spiral_core = "none"``). Methods: ``robust`` (default pipeline: 
 Gauss-Newton + ambiguity + members + weld re-plan), ``paper7`` / ``paper1`` (Powell from 7 / 1 seeds on eq. 3,
 2.5 mm mean-error check; each weld moved by M alone, as in the paper).
 
-Reported per row: σ of the pose error X, Y, θ against the placement (study statistics of
-``localization.error_vs_truth``); σ of the weld points' X and Y error against the true welds, pooled over
-the ok trials (from each trial's mean and RMS: ``welds_vs_truth`` for robust, ``welds_rigid_vs_truth`` for
-the paper's methods); failed % (the study's failure rate: failed, ambiguous, refused plan); uncertain welds %
-(robust: welds its members did not place, not claimed); wrong answers (ok but a claimed weld > 2.5 mm off);
-the median CPU ms of the localization in the trial. Prints markdown; nothing is asserted.
+Reported per row: σ of the pose error X, Y, θ against three references (study statistics): the pose a
+perfect measurement of the as-built part along the plan would return (``pose_error_vs_asbuilt``, the
+localization's own error), the placement (``error_vs_truth``, the paper's definition, which includes the
+members' deviations from CAD) and the best rigid match of the CAD outlines to the as-built ones
+(``pose_error_vs_asbuilt_outline``; plugins/localize/reference.py); the references themselves (crossings,
+the as-built part's RMS about its best pose, how much the two as-built references differ, the bias); σ of
+the weld points' X and Y error against the true welds, pooled over the ok trials (from each trial's mean and
+RMS: ``welds_vs_truth`` for robust, ``welds_rigid_vs_truth`` for the paper's methods); failed % (the study's
+failure rate: failed, ambiguous, refused plan); uncertain welds % (robust: welds its members did not place,
+not claimed); wrong answers (ok but a claimed weld > 2.5 mm off); the median CPU ms of the localization in
+the trial. Prints markdown; nothing is asserted.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import statistics
@@ -111,6 +120,12 @@ def summarize(study: dict, method: str) -> dict:
             sd("localization.error_vs_truth.y_mm"),
             sd("localization.error_vs_truth.theta_deg"),
         ),
+        "asbuilt": tuple(
+            sd(f"localization.pose_error_vs_asbuilt.{k}") for k in ("x_mm", "y_mm", "theta_deg")
+        ),
+        "outline": tuple(
+            sd(f"localization.pose_error_vs_asbuilt_outline.{k}") for k in ("x_mm", "y_mm", "theta_deg")
+        ),
         "weld": (wx, wy),
         "failed": 100.0 * study["failure_rate"],
         "uncertain": 100.0 * statistics.fmean(f.get(f"{key}.uncertain_fraction", 0.0) for f in fig)
@@ -123,7 +138,37 @@ def summarize(study: dict, method: str) -> dict:
         "errors": sorted(
             {(t.get("error") or {}).get("line", "")[:120] for t in trials if t["status"] != "ok"}
         ),
+        "reference": _reference_figures(fig),
     }
+
+
+def _reference_figures(fig: list[dict]) -> dict:
+    """The as-built references themselves: crossings per trial, the as-built part's RMS about its best rigid
+    pose, the σ of the difference of the two references (how much the definition matters), and the mean
+    (bias) of the pose error against the crossing reference."""
+    key = "asbuilt_reference"
+    sel = [f for f in fig if f.get(f"{key}.crossings.x") is not None]
+    if len(sel) < 2:
+        return {}
+    diff = [[(f[f"{key}.crossings.{a}"] - f[f"{key}.outline.{a}"]) * 1e3 for a in ("x", "y")] for f in sel]
+    return {
+        "crossings": statistics.median(f[f"{key}.n_crossings"] for f in sel),
+        "rms_mm": statistics.median(f[f"{key}.rms_mm"] for f in sel),
+        "ref_diff_sd": tuple(statistics.stdev(d[i] for d in diff) for i in (0, 1)),
+        "bias": tuple(
+            statistics.fmean(f[f"localization.pose_error_vs_asbuilt.{a}"] for f in sel)
+            for a in ("x_mm", "y_mm")
+        ),
+    }
+
+
+def _rms(values) -> float:
+    """Root mean square of the rows' σ (the rows have equal trial counts): the σ of all their trials."""
+    return math.sqrt(statistics.fmean(v**2 for v in values))
+
+
+def _triple(v) -> str:
+    return f"{v[0]:.3f} / {v[1]:.3f} / {v[2]:.3f}"
 
 
 def main() -> None:
@@ -138,6 +183,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=None, help="local worker processes (0: in this process)")
     ap.add_argument("-o", "--out", type=Path, default=None, help="keep the studies here (resumable)")
+    ap.add_argument("--reuse", action="store_true", help="summarize a row's finished study.json in OUT as is")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="localize-table1-"))
     opts = ClusterOptions(workers=args.workers)
@@ -146,7 +192,8 @@ def main() -> None:
     )
     rows, cmds = [], []
     head = (
-        "| workpiece | plan | method | edge pts | σX pose (mm) | σY pose (mm) | σθ (deg) | σX weld (mm) "
+        "| workpiece | plan | method | edge pts | σX / σY / σθ pose vs as-built (mm, mm, deg) "
+        "| σX / σY / σθ pose vs placement | σX / σY / σθ pose vs as-built outline | σX weld (mm) "
         "| σY weld (mm) | failed % | uncertain welds % | wrong ok | median localize cpu ms |"
     )
     print(head)
@@ -158,29 +205,52 @@ def main() -> None:
                 dest = out / f"{wp}-{plan}-{m}"
                 cmds.append(command(args.trials, args.seed, vary, dest))
                 t0 = time.perf_counter()
-                study = run_study(PROFILE, args.trials, vary, dest, opts, seed=args.seed)
+                done = dest / "study.json"
+                if args.reuse and done.is_file():
+                    study = json.loads(done.read_text(encoding="utf-8"))
+                else:
+                    study = run_study(PROFILE, args.trials, vary, dest, opts, seed=args.seed)
                 r = summarize(study, m)
                 r.update(wp=wp, plan=plan, method=m, wall=time.perf_counter() - t0)
                 rows.append(r)
-                px, py, pt = r["pose"]
                 print(
-                    f"| {wp} | {plan} | {m} | {r['points']:.0f} | {px:.3f} | {py:.3f} | {pt:.3f} | "
+                    f"| {wp} | {plan} | {m} | {r['points']:.0f} | {_triple(r['asbuilt'])} | "
+                    f"{_triple(r['pose'])} | {_triple(r['outline'])} | "
                     f"{r['weld'][0]:.3f} | {r['weld'][1]:.3f} | {r['failed']:.1f} | {r['uncertain']:.1f} | "
                     f"{r['wrong']} | {r['cpu']:.0f} |",
                     flush=True,
                 )
-    print("\n| method | plans | σX weld (mm) | σY weld (mm) | σθ (deg) | failed % | wrong ok |")
-    print("|---|---|---|---|---|---|---|")
-    print("| paper (Table 1, real cell) | both | 0.31 | 0.43 | 0.36 | < 13 | ? |")
+    print("\n| method | plans | figure | σX (mm) | σY (mm) | σθ (deg) | failed % | wrong ok |")
+    print("|---|---|---|---|---|---|---|---|")
+    print("| paper (Table 1, real cell) | both | pose | 0.31 | 0.43 | 0.36 | < 13 | ? |")
     for m in args.methods.split(","):
-        sel = [r for r in rows if r["method"] == m]
-        rms = [math.sqrt(statistics.fmean(r[k][i] ** 2 for r in sel)) for k, i in (("weld", 0), ("weld", 1))]
-        th = math.sqrt(statistics.fmean(r["pose"][2] ** 2 for r in sel))
-        fail = statistics.fmean(r["failed"] for r in sel)
-        print(
-            f"| {m} | all rows (rms of σ) | {rms[0]:.3f} | {rms[1]:.3f} | {th:.3f} | {fail:.1f} | "
-            f"{sum(r['wrong'] for r in sel)} |"
-        )
+        for plans in [args.plans, *args.plans.split(",")] if "," in args.plans else [args.plans]:
+            sel = [r for r in rows if r["method"] == m and r["plan"] in plans.split(",")]
+            fail = statistics.fmean(r["failed"] for r in sel)
+            wrong = sum(r["wrong"] for r in sel)
+            for name, key in (
+                ("pose vs as-built", "asbuilt"),
+                ("pose vs placement", "pose"),
+                ("pose vs as-built outline", "outline"),
+                ("weld points", "weld"),
+            ):
+                v = [_rms(r[key][i] for r in sel) for i in range(len(sel[0][key]))]
+                th = f"{v[2]:.3f}" if len(v) > 2 else ""
+                print(f"| {m} | {plans} | {name} | {v[0]:.3f} | {v[1]:.3f} | {th} | {fail:.1f} | {wrong} |")
+    print(
+        "\n| workpiece | plan | method | crossings | as-built RMS about its best pose (mm) "
+        "| σX / σY crossings ref − outline ref (mm) | mean pose error vs as-built X / Y (mm) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        g = r["reference"]
+        if g:
+            dx, dy = g["ref_diff_sd"]
+            bx, by = g["bias"]
+            print(
+                f"| {r['wp']} | {r['plan']} | {r['method']} | {g['crossings']:.0f} | {g['rms_mm']:.3f} | "
+                f"{dx:.3f} / {dy:.3f} | {bx:+.3f} / {by:+.3f} |"
+            )
     for r in rows:
         if r["errors"] or r["lost"]:
             print(f"\n{r['wp']} {r['plan']} {r['method']}: {r['lost']} lost; failures: {r['errors']}")

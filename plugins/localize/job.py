@@ -188,6 +188,7 @@ def place_in_sim(ctx, template: Template, w: SimWorkerSettings) -> TruePlacement
     from shapely.geometry import Polygon
     from weldcell.hal.sim.weldment import perturb_members, placement_error, weldment_workpiece
     from weldcell.plugins.localize.pose import pose_matrix
+    from weldcell.plugins.localize.refine import fuse_across, member_axis
 
     rng = np.random.default_rng([ctx.profile.cell.seed, 1002])
     dx, dy, dth = (
@@ -202,7 +203,12 @@ def place_in_sim(ctx, template: Template, w: SimWorkerSettings) -> TruePlacement
     welds = []
     for wd in template.welds:
         near = [i for i, p in enumerate(polys) if distance(p, points(wd.points[:, :2])).min() <= 3e-3]
-        xy = np.mean([var[i].displace(wd.points[:, :2]) for i in near], axis=0) if near else wd.points[:, :2]
+        xy = wd.points[:, :2]
+        if near:  # a seam lies against the side faces of the members it joins: it follows each across its
+            # axis (refine.fuse_across, as synth.true_welds), not the mean of their displacements
+            axes = [member_axis(template.members[i].outline) for i in near]
+            disp = [var[i].displace(xy) - xy for i in near]
+            xy = xy + fuse_across(disp, [np.array([-u[1], u[0]]) for u in axes])
         welds.append(np.column_stack([xy @ M[:2, :2].T + M[:2, 3], wd.points[:, 2]]))
     world = world_of(ctx)
     T_world_base = world.T_world("robot.base")

@@ -129,6 +129,15 @@ def fig_members(loc, tolerance: float):
     return fig
 
 
+def _latency_line(acquisition: dict) -> str:
+    lat = acquisition.get("latency_s")
+    if lat is None:
+        return "latency: n/a"
+    how = acquisition.get("latency", {})
+    src = "estimated from the scan" if how.get("estimated", True) else how.get("reason", "from the settings")
+    return f"sensor-robot latency: {lat * 1e3:.2f} ms ({src})"
+
+
 def summary_text(template, plan, scan, edges, loc, path, truth, figures: dict) -> str:
     sig = loc.to_json()["sigma"]
     lines = [
@@ -148,13 +157,13 @@ def summary_text(template, plan, scan, edges, loc, path, truth, figures: dict) -
             else (f"{sig[k] * 1e3:.3f} mm" if k != "theta" else f"{math.degrees(sig[k]):.4f} deg")
             for k in ("x", "y", "theta")
         ),
-        "covariance (x [m], y [m], theta [rad]):",
+        "covariance (x, y in m; theta in rad):",
         *("  " + "  ".join(f"{v: .3e}" for v in row) for row in np.asarray(loc.covariance)),
         "",
         f"inspection: {plan.kind}, {len(plan.lines)} lines, {plan.length:.2f} m, "
         f"{plan.duration:.1f} s planned; "
         f"{len(scan)} readings, {len(edges)} edge points",
-        f"latency: {figures.get('acquisition', {}).get('latency_s')}",
+        _latency_line(figures.get("acquisition", {})),
         "members:",
     ]
     for m in loc.members:
@@ -163,11 +172,13 @@ def summary_text(template, plan, scan, edges, loc, path, truth, figures: dict) -
             f"{np.linalg.norm(m.offset) * 1e3:.2f} mm, {math.degrees(m.dtheta):.3f} deg"
         )
     if truth is not None:
-        e = figures.get("localization", {}).get("error_vs_truth", {})
+        e = {"x_mm": math.nan, "y_mm": math.nan, "theta_deg": math.nan}
+        e.update(figures.get("localization", {}).get("error_vs_truth", {}))
         lines.append(
             f"simulated truth: x {truth.pose[0] * 1e3:.2f} mm, y {truth.pose[1] * 1e3:.2f} mm, "
-            f"theta {math.degrees(truth.pose[2]):.3f} deg; error "
-            + ", ".join(f"{k} {v:.3f}" for k, v in e.items())
+            f"theta {math.degrees(truth.pose[2]):.3f} deg; localization error x {e['x_mm']:.3f} mm, "
+            f"y {e['y_mm']:.3f} mm, theta {e['theta_deg']:.4f} deg (against the placement; the members are "
+            "off CAD, so part of it is theirs)"
         )
     if path is not None:
         lines.append(

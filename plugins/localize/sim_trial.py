@@ -11,23 +11,28 @@ localize stages of the profile; the job's failure checks. No projector, no robot
 takes about a second instead of a minute.
 
 Figures (``result.json``, the columns of ``weldcell study``): ``localization`` (status, pose, fit error,
-sigma, ``error_vs_truth`` {x_mm, y_mm, theta_deg}), ``welds_vs_truth`` (the welds the job would weld, each
-re-planned from its members, against the true welds: per-trial mean and RMS of the X and Y error of the weld
-points, the largest error of a weld claimed ``ok``, the share of welds reported ``uncertain``, ``wrong`` = 1
-when the localization said ok but a claimed weld is more than 2.5 mm off), ``welds_rigid_vs_truth`` (the
-same with the CAD welds moved by M alone, as in the paper), ``plan``, ``edge_points``, ``timings_ms``.
-A localization that is not ``ok`` fails the run (JobError), as in the full job: the study counts it in its
-failure rate.
+sigma, ``error_vs_truth`` {x_mm, y_mm, theta_deg} against the placement, ``pose_error_vs_asbuilt`` against
+the pose a perfect measurement of the as-built part along the plan would return and
+``pose_error_vs_asbuilt_outline`` against the best rigid match of the CAD outlines to the as-built ones --
+:mod:`.reference`, ground truth only; the references themselves in ``asbuilt_reference``),
+``welds_vs_truth`` (the welds the job would weld, each re-planned from its members, against the true
+welds: per-trial mean and RMS of the X and Y error of the weld points, the largest error of a weld claimed
+``ok``, the share of welds reported ``uncertain``, ``wrong`` = 1 when the localization said ok but a claimed
+weld is more than 2.5 mm off), ``welds_rigid_vs_truth`` (the same with the CAD welds moved by M alone, as in
+the paper), ``plan``, ``edge_points``, ``timings_ms``. A localization that is not ``ok`` fails the run
+(JobError), as in the full job: the study counts it in its failure rate.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from pydantic import Field
 from weldcell.plugins.localize.plans import check_constraints, make_plan
 from weldcell.plugins.localize.pose import transform_template, wrap
+from weldcell.plugins.localize.reference import asbuilt_pose_crossings, asbuilt_pose_outline
 from weldcell.plugins.localize.synth import (
     SensorModel,
     apply_variations,
@@ -54,6 +59,56 @@ class SimScanSettings(Settings):
     shear_dropout: float = Field(0.5, ge=0, le=1, description="share of sheared readings out of range")
     dropout: float = Field(1e-3, ge=0, le=1, description="share of random out-of-range readings")
     rate: Frequency = Field(1500.0, gt=0, description="measuring rate [Hz]")
+
+
+@dataclass(frozen=True)
+class PoseError:
+    """A found pose minus a reference pose (x, y, theta about the template's centroid), in mm and degrees;
+    theta wrapped to (-180, 180]: a turn by 2 pi is the same pose."""
+
+    x_mm: float
+    y_mm: float
+    theta_deg: float
+
+    @classmethod
+    def of(cls, found, reference) -> PoseError:
+        d = np.asarray(found, float) - np.asarray(reference, float)
+        return cls(float(d[0] * 1e3), float(d[1] * 1e3), float(np.degrees(wrap(d[2]))))
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class AsBuiltTruth:
+    """The references of the pose error besides the placement (:mod:`.reference`; ground truth only):
+    ``crossings`` the pose a perfect measurement along the plan would return, ``outline`` the best rigid
+    match of the CAD outlines to the as-built ones; ``crossings`` is None when the plan crosses fewer than
+    three visible edges."""
+
+    crossings: np.ndarray | None
+    outline: np.ndarray
+    n_crossings: int
+    rms_mm: float
+
+    def to_json(self) -> dict:
+        c = self.crossings
+        return {
+            "crossings": None if c is None else {"x": c[0], "y": c[1], "theta": c[2]},
+            "outline": {"x": self.outline[0], "y": self.outline[1], "theta": self.outline[2]},
+            "n_crossings": self.n_crossings,
+            "rms_mm": self.rms_mm,
+        }
+
+
+def asbuilt_truth(template, pose, variations, lines) -> AsBuiltTruth:
+    """Both as-built references of this trial (never the localizer's output nor the sensor's errors)."""
+    outline = asbuilt_pose_outline(template, pose, variations)
+    try:
+        ref = asbuilt_pose_crossings(template, pose, variations, lines)
+    except ValueError:
+        return AsBuiltTruth(None, outline.pose, 0, float("nan"))
+    return AsBuiltTruth(ref.pose, outline.pose, ref.points, ref.rms * 1e3)
 
 
 def placement(w, rng: np.random.Generator) -> np.ndarray:
@@ -130,11 +185,12 @@ def run(ctx) -> dict:
         doc = loc.to_json()
         ctx.write_json("localization.json", doc)
     fig = {k: doc[k] for k in ("status", "message", "method", "x", "y", "theta", "fit_error_mean", "sigma")}
-    fig["error_vs_truth"] = {
-        "x_mm": (loc.pose[0] - pose[0]) * 1e3,
-        "y_mm": (loc.pose[1] - pose[1]) * 1e3,
-        "theta_deg": float(np.degrees(wrap(loc.pose[2] - pose[2]))),  # a turn by 2 pi is the same pose
-    }
+    fig["error_vs_truth"] = PoseError.of(loc.pose, pose).to_json()  # against the placement
+    ref = asbuilt_truth(template, pose, var, plan.lines)
+    ctx.figures["asbuilt_reference"] = ref.to_json()
+    if ref.crossings is not None:
+        fig["pose_error_vs_asbuilt"] = PoseError.of(loc.pose, ref.crossings).to_json()
+    fig["pose_error_vs_asbuilt_outline"] = PoseError.of(loc.pose, ref.outline).to_json()
     ctx.figures["localization"] = fig
     ctx.figures["readings"] = len(scan)
     ctx.figures["edge_points"] = len(edges)

@@ -35,6 +35,12 @@ def test_localize_scope_finds_the_placement_and_reports_errors_against_the_truth
     assert loc["status"] == "ok", loc["message"]
     err = loc["error_vs_truth"]  # members are off CAD by up to 2 mm: the rigid pose within about 1 mm
     assert abs(err["x_mm"]) < 1.5 and abs(err["y_mm"]) < 1.5 and abs(err["theta_deg"]) < 0.2
+    # against the pose a perfect measurement of the as-built part would return: the localization's own error
+    ref = f["asbuilt_reference"]
+    assert ref["n_crossings"] > 100 and 0.0 < ref["rms_mm"] < 2.0
+    built = loc["pose_error_vs_asbuilt"]
+    assert abs(built["x_mm"]) < 0.3 and abs(built["y_mm"]) < 0.3 and abs(built["theta_deg"]) < 0.05
+    assert set(loc["pose_error_vs_asbuilt_outline"]) == {"x_mm", "y_mm", "theta_deg"}
     w = f["welds_vs_truth"]  # the welds re-planned from their members: well under the members' deviation
     assert w["points"] > 0 and w["wrong"] == 0 and w["max_claimed_mm"] < 1.0
     assert w["rms_x_mm"] < f["welds_rigid_vs_truth"]["rms_x_mm"] + 0.05
