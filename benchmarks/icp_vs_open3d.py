@@ -21,7 +21,7 @@ import numpy as np
 import open3d as o3d
 from weldcell.plugins.scan_plan.denoise import pca_normals, voxel_downsample
 from weldcell.plugins.scan_plan.nearest import backend_name
-from weldcell.plugins.scan_plan.registration import linear_icp
+from weldcell.plugins.scan_plan.registration import IcpOptions, linear_icp
 from weldcell.sdk.cloud import read_cloud
 from weldcell.sdk.geometry import T_from_rotvec, invert, pose_error, transform_points
 
@@ -111,7 +111,10 @@ def main() -> None:
         (t_ours, r), (t_o3d, ro) = median_times(
             [
                 lambda s=s, t=t, n=n, d=d_max: linear_icp(
-                    s, t, n, max_correspondence_distance=d, max_iterations=args.iterations, tolerance=1e-6
+                    s,
+                    t,
+                    IcpOptions(max_correspondence_distance=d, max_iterations=args.iterations, tolerance=1e-6),
+                    target_normals=n,
                 ),
                 run,
             ],

@@ -33,7 +33,7 @@ import open3d as o3d
 from scan_plan_table1 import WORKPIECES, capture, mean_worst
 from scipy.spatial import cKDTree
 from weldcell.plugins.scan_plan.job import evaluate
-from weldcell.plugins.scan_plan.reconstruct import reconstruct
+from weldcell.plugins.scan_plan.reconstruct import ReconstructOptions, reconstruct
 from weldcell.plugins.scan_plan.stages import (
     BilateralDenoiser,
     BilateralSettings,
@@ -89,7 +89,8 @@ def run(kind: str, seed: int, error: tuple[float, float], with_seam: bool) -> di
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            rec = reconstruct(scans, T_fc, voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor)
+            options = ReconstructOptions(voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor)
+            rec = reconstruct(scans, T_fc, options)
         dt = time.perf_counter() - t0
         he = T_fc @ rec.hand_eye.D if rec.hand_eye is not None and rec.hand_eye.applied else T_fc
         he_t, he_r = pose_error(he, np.eye(4))

@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 from weldcell.hal.sim.camera_model import RaycastCamera
 from weldcell.hal.sim.workpieces import make_workpiece
 from weldcell.plugins.scan_plan.job import evaluate
-from weldcell.plugins.scan_plan.reconstruct import reconstruct
+from weldcell.plugins.scan_plan.reconstruct import ReconstructOptions, reconstruct
 from weldcell.plugins.scan_plan.stages import (
     BilateralDenoiser,
     BilateralSettings,
@@ -136,7 +136,9 @@ def run_case(
     viewpoints = [T[:3, 3].tolist() for T in poses]
     t0 = time.perf_counter()
     rec = reconstruct(
-        scans, T_fc, voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor, prior=prior
+        scans,
+        T_fc,
+        ReconstructOptions(voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor, prior=prior),
     )
     t1 = time.perf_counter()
     rec.cloud.meta["viewpoints"] = viewpoints

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -21,7 +21,7 @@ from weldcell.sdk.scan import PosedScan  # noqa: F401  (re-exported: the scan ty
 from .cloud_numerics import as_points, pca_normals, voxel_downsample
 from .hand_eye_fit import MIN_OVERLAP, HandEyeFit, fit_hand_eye
 from .nearest import PointTree
-from .registration import IcpResult, linear_icp, point_to_plane_information
+from .registration import IcpOptions, IcpResult, linear_icp, point_to_plane_information
 
 Progress = Callable[[int, int, str], None]
 ANCHORS = ("mean", "first", "hand-eye")
@@ -53,6 +53,65 @@ class ReconstructResult:
     icp: list[IcpResult | None] = field(default_factory=list)
     anchor_shift: np.ndarray = field(default_factory=lambda: np.eye(4))
     hand_eye: HandEyeFit | None = None
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """How :func:`reconstruct` merges and registers the views (checked when made; the stage builds it
+    from :class:`~weldcell.plugins.scan_plan.stages.ReconstructSettings`).
+
+    ``voxel`` (m, None keeps every point): the registration and output grid. ``register_to_model``: ICP
+    each view against the model merged so far (False: eq. 1 only). ICP (see
+    :class:`~.registration.IcpOptions`): ``max_correspondence_distance`` (default 3 x ``voxel``, or
+    1 cm without a voxel), ``max_iterations``, ``tolerance``, ``robust``, ``update``, ``normal_k``, and
+    ``prior = (sigma_t, sigma_r)`` (m, rad), the expected error of a view's kinematic pose.
+    ``fitness_distance`` (default a third of the correspondence distance): the pair distance of eq. 20.
+    ``max_correction`` (m, rad): larger ICP corrections are rejected. ``anchor``: "mean", "first" or
+    "hand-eye" (see :func:`reconstruct`), ``hand_eye_passes`` its leave-one-out refinement passes.
+    """
+
+    voxel: float | None
+    register_to_model: bool = True
+    max_correspondence_distance: float | None = None
+    max_iterations: int = 50
+    tolerance: float = 1e-6
+    robust: str | None = "huber"
+    update: str = "exact"
+    max_correction: tuple[float, float] = (0.05, np.deg2rad(10.0))
+    normal_k: int = 20
+    fitness_distance: float | None = None
+    anchor: str = "mean"
+    prior: tuple[float, float] | None = None
+    hand_eye_passes: int = 2
+
+    def __post_init__(self) -> None:
+        if self.anchor not in ANCHORS:
+            raise DataError(f"unknown anchor '{self.anchor}'", "use anchor='mean', 'first' or 'hand-eye'")
+        if self.hand_eye_passes < 0:
+            raise DataError(
+                f"hand_eye_passes must be >= 0, got {self.hand_eye_passes}", "use e.g. 2 (0: one fit only)"
+            )
+        v = self.voxel
+        if v is not None and (not np.isfinite(v) or v <= 0):
+            raise DataError(
+                f"voxel must be > 0 m or None, got {v}", "use e.g. 2 mm (0.002) for an RGB-D scan"
+            )
+
+    @property
+    def correspondence_distance(self) -> float:
+        """The ICP correspondence distance (m): as given, else 3 x ``voxel`` (1 cm without a voxel)."""
+        return self.max_correspondence_distance or (3.0 * self.voxel if self.voxel else 0.01)
+
+    def icp(self) -> IcpOptions:
+        """The per-view registration's options (without the pose prior; the growing-model pass adds it)."""
+        return IcpOptions(
+            max_correspondence_distance=self.correspondence_distance,
+            max_iterations=self.max_iterations,
+            tolerance=self.tolerance,
+            robust=self.robust,
+            update=self.update,
+            normal_k=self.normal_k,
+        )
 
 
 def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
@@ -107,23 +166,11 @@ def merge_views(views: Sequence[PosedScan], T_flange_camera: np.ndarray) -> Poin
 def reconstruct(
     scans: Sequence[PosedScan],
     T_flange_camera: np.ndarray,
-    *,
-    voxel: float | None,
-    register_to_model: bool = True,
-    max_correspondence_distance: float | None = None,
-    max_iterations: int = 50,
-    tolerance: float = 1e-6,
-    robust: str | None = "huber",
-    update: str = "exact",
-    max_correction: tuple[float, float] = (0.05, np.deg2rad(10.0)),
-    normal_k: int = 20,
-    fitness_distance: float | None = None,
-    anchor: str = "mean",
-    prior: tuple[float, float] | None = None,
-    hand_eye_passes: int = 2,
+    options: ReconstructOptions,
     progress: Progress | None = None,
 ) -> ReconstructResult:
-    """Merge posed views into one model in the base frame (eq. 1) refined by ICP (eqs. 2-8).
+    """Merge posed views into one model in the base frame (eq. 1) refined by ICP (eqs. 2-8). The settings
+    named below are fields of ``options`` (:class:`ReconstructOptions`).
 
     The first view seeds the model. Each further view starts from its kinematic pose (flange pose x
     hand-eye) and is registered by :func:`linear_icp` to the model merged so far (``register_to_model``;
@@ -154,20 +201,13 @@ def reconstruct(
     ``progress(i, n, message)`` is called once per view.
     """
     n = len(scans)
-    if anchor not in ANCHORS:
-        raise DataError(f"unknown anchor '{anchor}'", "use anchor='mean', 'first' or 'hand-eye'")
     if n == 0:
         raise DataError("no scans to reconstruct", "capture at least one view")
-    if hand_eye_passes < 0:
-        raise DataError(
-            f"hand_eye_passes must be >= 0, got {hand_eye_passes}", "use e.g. 2 (0: one fit only)"
-        )
-    if voxel is not None and (not np.isfinite(voxel) or voxel <= 0):
-        raise DataError(
-            f"voxel must be > 0 m or None, got {voxel}", "use e.g. 2 mm (0.002) for an RGB-D scan"
-        )
-    d_max = max_correspondence_distance or (3.0 * voxel if voxel else 0.01)
-    d_fit = fitness_distance or d_max / 3.0
+    o = options
+    voxel, anchor, register_to_model = o.voxel, o.anchor, o.register_to_model
+    max_correction = o.max_correction
+    d_max = o.correspondence_distance
+    d_fit = o.fitness_distance or d_max / 3.0
 
     def down(P: np.ndarray) -> np.ndarray:
         return voxel_downsample(P, voxel_size=voxel) if voxel else P
@@ -183,14 +223,8 @@ def reconstruct(
     accepted: list[bool] = []
     icps: list[IcpResult | None] = []
     model = np.empty((0, 3))
-    icp_kw = dict(
-        max_correspondence_distance=d_max,
-        max_iterations=max_iterations,
-        tolerance=tolerance,
-        robust=robust,
-        update=update,
-        normal_k=normal_k,
-    )
+    icp = o.icp()
+    icp_prior = replace(icp, prior=o.prior)
     for i, scan in enumerate(scans):
         P, T0 = view_to_base(scan, T_flange_camera)
         corr = np.eye(4)
@@ -202,7 +236,7 @@ def reconstruct(
             # one KD-tree of the model per view, shared by the normals (computed only where the view
             # overlaps the model), the correspondence search and eq. 20 before and after
             tree = PointTree(model)
-            res = linear_icp(src, model, None, target_tree=tree, prior=prior, **icp_kw)
+            res = linear_icp(src, model, icp_prior, target_tree=tree)
             info.append(res.information)
             fb = _fitness(res.initial_distances, src, np.eye(4), tree, d_fit, d_max)
             fa = _fitness(res.distances, src, res.T, tree, d_fit, d_max)
@@ -220,7 +254,7 @@ def reconstruct(
                 fa = fb
         elif i == 0 and register_to_model and anchor == "hand-eye":
             src = down(P)
-            info.append(point_to_plane_information(src, pca_normals(src, k=normal_k)))
+            info.append(point_to_plane_information(src, pca_normals(src, k=o.normal_k)))
         if anchor == "hand-eye" and register_to_model:  # on the camera's voxel grid, see _leave_one_out
             srcs.append(down(as_points(scan.cloud.points, "view cloud")))
         Pc = P @ corr[:3, :3].T + corr[:3, 3]
@@ -243,7 +277,7 @@ def reconstruct(
             for r, ok in zip(icps[1:], accepted[1:], strict=True)
         ]
         first_fit = fit_hand_eye(T_bc, T_kin, info, conf)
-        fit = _hand_eye_anchor(srcs, T_kin, first_fit, hand_eye_passes, icp_kw, max_correction, progress)
+        fit = _hand_eye_anchor(srcs, T_kin, first_fit, o.hand_eye_passes, icp, max_correction, progress)
         if fit.applied:
             moves = [B @ fit.D @ invert(A) for A, B in zip(T_bc, T_kin, strict=True)]
             full = [P @ M[:3, :3].T + M[:3, 3] for P, M in zip(full, moves, strict=True)]
@@ -265,7 +299,7 @@ def _leave_one_out(
     srcs: list[np.ndarray],
     T_kin: list[np.ndarray],
     D: np.ndarray,
-    icp_kw: dict,
+    icp: IcpOptions,
     max_correction: tuple[float, float],
 ) -> tuple[list[np.ndarray], list[np.ndarray], list[float]]:
     """Place the views' registration points (camera frame) at ``B_i D`` and register each to the union
@@ -280,7 +314,7 @@ def _leave_one_out(
         others = [Q for j, Q in enumerate(parts) if j != i]
         c, info, T = 0.0, np.zeros((6, 6)), np.eye(4)
         try:
-            r = linear_icp(P, np.concatenate(others), None, **icp_kw) if others else None
+            r = linear_icp(P, np.concatenate(others), icp) if others else None
         except DataError:  # no overlap with the other views: left out of this fit
             r = None
         if r is not None:
@@ -300,7 +334,7 @@ def _hand_eye_anchor(
     T_kin: list[np.ndarray],
     fit: HandEyeFit,
     passes: int,
-    icp_kw: dict,
+    icp: IcpOptions,
     max_correction: tuple[float, float],
     progress=None,
 ) -> HandEyeFit:
@@ -312,7 +346,7 @@ def _hand_eye_anchor(
             break
         if progress is not None:
             progress(n, n, f"hand-eye correction: re-registration pass {k + 1}/{passes}")
-        A, H, conf = _leave_one_out(srcs, T_kin, fit.D, icp_kw, max_correction)
+        A, H, conf = _leave_one_out(srcs, T_kin, fit.D, icp, max_correction)
         new = fit_hand_eye(A, T_kin, H, conf)
         if not new.applied:
             break

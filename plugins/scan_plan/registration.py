@@ -42,6 +42,62 @@ _THREADED_QUERY = 4000
 _BLAS_ROWS = 4096
 
 
+@dataclass(frozen=True)
+class IcpOptions:
+    """What :func:`linear_icp` does and when it stops (in the spirit of Open3D's ``ICPConvergenceCriteria``
+    with the correspondence distance and the estimation's options beside it). Checked when made.
+
+    ``max_correspondence_distance`` (m): pairs farther apart are not used. Stops when the changes of the
+    fitness (a ratio) and of the inlier RMSE (m) from one iteration to the next both fall below
+    ``tolerance`` (Open3D's criterion), when the update is smaller than ``tolerance`` (rad and m), or
+    after ``max_iterations``. ``robust`` = "huber" | "tukey" re-weights the residuals (scale
+    ``robust_scale`` m, or adaptive). ``update``: "exact" (rotation) or "linear" (the paper's eq. 5).
+    ``normal_k``: neighbours of the PCA target normals (eq. 9) when none are given.
+    ``prior = (sigma_t, sigma_r)`` (m, rad): how far the initial guess may be off (e.g. kinematics +
+    hand-eye). The correction then minimises the point-to-plane sum of squares plus a Gaussian prior on
+    the correction (MAP instead of least squares): directions the data hardly constrain (rotation about
+    a cylinder's axis, sliding along a plane) stay near the initial guess instead of drifting; well
+    constrained ones are unaffected. None (the default, the paper) adds nothing.
+    """
+
+    max_correspondence_distance: float
+    max_iterations: int = 50
+    tolerance: float = 1e-6
+    robust: str | None = None
+    robust_scale: float | None = None
+    update: str = "exact"
+    normal_k: int = 20
+    prior: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        d_max = float(self.max_correspondence_distance)
+        if not np.isfinite(d_max) or d_max <= 0:
+            raise DataError(
+                f"max_correspondence_distance must be > 0 m, got {self.max_correspondence_distance}",
+                "use a few times the expected pose error (e.g. 3x the voxel size)",
+            )
+        if self.robust not in ROBUST_KERNELS:
+            raise DataError(f"unknown robust kernel '{self.robust}'", "use robust=None, 'huber' or 'tukey'")
+        if self.update not in UPDATES:
+            raise DataError(f"unknown update '{self.update}'", "use update='exact' or 'linear'")
+        if self.max_iterations < 1:
+            raise DataError(
+                f"max_iterations must be >= 1, got {self.max_iterations}", "pass max_iterations >= 1"
+            )
+        object.__setattr__(self, "max_correspondence_distance", d_max)
+        if self.prior is not None:
+            try:
+                sig = np.asarray(self.prior, dtype=float)
+            except (TypeError, ValueError):
+                sig = np.array([np.nan])
+            if sig.shape != (2,) or not np.all(np.isfinite(sig) & (sig > 0)):
+                raise DataError(
+                    f"prior must be (sigma_t > 0 m, sigma_r > 0 rad), got {self.prior!r}",
+                    "e.g. prior=(0.002, 0.01)",
+                )
+            object.__setattr__(self, "prior", (float(sig[0]), float(sig[1])))
+
+
 @dataclass
 class IcpResult:
     """Outcome of :func:`linear_icp`.
@@ -418,61 +474,26 @@ def _normal_table(Tg: np.ndarray, Nt: np.ndarray) -> np.ndarray:
 def linear_icp(
     source: np.ndarray,
     target: np.ndarray,
+    options: IcpOptions,
+    *,
     target_normals: np.ndarray | None = None,
     init: np.ndarray = np.eye(4),
-    *,
-    max_correspondence_distance: float,
-    max_iterations: int = 50,
-    tolerance: float = 1e-6,
-    robust: str | None = None,
-    robust_scale: float | None = None,
-    update: str = "exact",
-    normal_k: int = 20,
     target_tree: PointTree | cKDTree | None = None,
-    prior: tuple[float, float] | None = None,
 ) -> IcpResult:
-    """Register ``source`` onto ``target`` by linear point-to-plane ICP (paper 000, eqs. 2-8).
+    """Register ``source`` onto ``target`` by linear point-to-plane ICP (paper 000, eqs. 2-8) with the
+    distance, stopping rule, kernel, update and prior of ``options`` (:class:`IcpOptions`).
 
     ``init`` is the initial ``T_target_source`` (the kinematics + hand-eye guess, eq. 1).
-    ``target_normals`` default to PCA normals of the ``normal_k`` nearest target points (eq. 9),
+    ``target_normals`` default to PCA normals of the ``options.normal_k`` nearest target points (eq. 9),
     estimated only for the target points that become correspondences.
-    Stops when the change of the fitness (a ratio) and of the inlier RMSE (m) from one iteration to
-    the next both fall below ``tolerance`` (Open3D's criterion), when the update is smaller than
-    ``tolerance`` (rad and m), or after ``max_iterations``.
-    ``robust`` = "huber" | "tukey" re-weights the residuals (scale ``robust_scale`` m, or adaptive).
-    ``prior = (sigma_t, sigma_r)`` (m, rad): how far the initial guess may be off (e.g. kinematics +
-    hand-eye). The correction then minimises the point-to-plane sum of squares plus a Gaussian prior on
-    the correction (MAP instead of least squares): directions the data hardly constrain (rotation about
-    a cylinder's axis, sliding along a plane) stay near the initial guess instead of drifting; well
-    constrained ones are unaffected. None (the default, the paper) adds nothing.
     ``target_tree`` lets a caller reuse a :class:`~.nearest.PointTree` (or ``cKDTree``) of ``target``.
     """
     S = np.ascontiguousarray(as_points(source, "ICP source", min_points=3))
     Tg = as_points(target, "ICP target", min_points=3)
-    d_max = float(max_correspondence_distance)
-    if not np.isfinite(d_max) or d_max <= 0:
-        raise DataError(
-            f"max_correspondence_distance must be > 0 m, got {max_correspondence_distance}",
-            "use a few times the expected pose error (e.g. 3x the voxel size)",
-        )
-    if robust not in ROBUST_KERNELS:
-        raise DataError(f"unknown robust kernel '{robust}'", "use robust=None, 'huber' or 'tukey'")
-    if update not in UPDATES:
-        raise DataError(f"unknown update '{update}'", "use update='exact' or 'linear'")
-    if max_iterations < 1:
-        raise DataError(f"max_iterations must be >= 1, got {max_iterations}", "pass max_iterations >= 1")
+    o = options
+    d_max, tolerance, prior = o.max_correspondence_distance, o.tolerance, o.prior
     T = _check_transform(init, "ICP initial transform").copy()
-    init_inv = None
-    if prior is not None:
-        try:
-            sig = np.asarray(prior, dtype=float)
-        except (TypeError, ValueError):
-            sig = np.array([np.nan])
-        if sig.shape != (2,) or not np.all(np.isfinite(sig) & (sig > 0)):
-            raise DataError(
-                f"prior must be (sigma_t > 0 m, sigma_r > 0 rad), got {prior!r}", "e.g. prior=(0.002, 0.01)"
-            )
-        prior, init_inv = (float(sig[0]), float(sig[1])), np.linalg.inv(T)
+    init_inv = None if prior is None else np.linalg.inv(T)
     if target_tree is not None and target_tree.n != len(Tg):
         raise DataError(
             f"target_tree holds {target_tree.n} points, the target {len(Tg)}",
@@ -481,7 +502,7 @@ def linear_icp(
     tree = target_tree if target_tree is not None else PointTree(Tg)
     lazy = None
     if target_normals is None:
-        lazy = LazyNormals(Tg, tree, normal_k)
+        lazy = LazyNormals(Tg, tree, o.normal_k)
         table = lazy.table
     else:
         Nt = np.asarray(target_normals, dtype=float)
@@ -500,7 +521,7 @@ def linear_icp(
     last = None
     dist0 = dist = None
     info = np.zeros((6, 6))
-    for it in range(max_iterations + 1):
+    for it in range(o.max_iterations + 1):
         Ss = _rigid_apply(S, T)
         dist, idx = cache.query(Ss)
         dist0 = dist if dist0 is None else dist0
@@ -524,15 +545,15 @@ def linear_icp(
             # as Open3D: changes of the fitness (a ratio) and of the inlier RMSE (m) both below tolerance
             if abs(fit - prev[0]) < tolerance and abs(rmse - prev[1]) < tolerance:
                 converged = True
-        if converged or it == max_iterations or n_in < 6:
+        if converged or it == o.max_iterations or n_in < 6:
             break
-        w = _robust_weights(res, robust, robust_scale) if robust else None
+        w = _robust_weights(res, o.robust, o.robust_scale) if o.robust else None
         pr = _prior_terms(prior, T, init_inv, res) if prior is not None else None
         G = _normal_matrix(_system_rows(s_in, nc[:, :3], -res), w)
         info = G[:6, :6] / n_in
         x = _solve(None, None, 1e-10, pr, G)
-        T = _step_matrix(x, update) @ T
-        if update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
+        T = _step_matrix(x, o.update) @ T
+        if o.update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
             T[:3, :3] = orthonormalize(T[:3, :3])
         d_rot, d_tr = float(np.linalg.norm(x[:3])), float(np.linalg.norm(x[3:]))
         history.append(

@@ -54,13 +54,12 @@ class Reconstructor:
     def __init__(self, s: ReconstructSettings) -> None:
         self.s = s
 
-    def __call__(self, scans, T_flange_camera, progress=None):
-        from weldcell.plugins.scan_plan.reconstruct import reconstruct
+    def options(self):
+        """The settings as :func:`~weldcell.plugins.scan_plan.reconstruct.reconstruct`'s options."""
+        from weldcell.plugins.scan_plan.reconstruct import ReconstructOptions
 
         robust = None if (self.s.robust or "").lower() in ("", "none") else self.s.robust
-        return reconstruct(
-            scans,
-            T_flange_camera,
+        return ReconstructOptions(
             voxel=self.s.voxel,
             register_to_model=self.s.register_to_model,
             max_correspondence_distance=self.s.max_correspondence_distance,
@@ -71,8 +70,12 @@ class Reconstructor:
             anchor=self.s.anchor,
             hand_eye_passes=self.s.hand_eye_passes,
             prior=tuple(self.s.pose_prior) if self.s.pose_prior is not None else None,
-            progress=progress,
         )
+
+    def __call__(self, scans, T_flange_camera, progress=None):
+        from weldcell.plugins.scan_plan.reconstruct import reconstruct
+
+        return reconstruct(scans, T_flange_camera, self.options(), progress=progress)
 
 
 class BilateralSettings(Settings):

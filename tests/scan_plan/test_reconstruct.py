@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
-from weldcell.plugins.scan_plan.reconstruct import PosedScan, merge_views, reconstruct
+from weldcell.plugins.scan_plan.reconstruct import PosedScan, ReconstructOptions, merge_views, reconstruct
 from weldcell.sdk.cloud import PointCloud
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rotvec, invert, make_T, pose_error, transform_points
@@ -63,7 +63,10 @@ def test_reconstruct_corrects_kinematic_errors_against_the_growing_model():
     scans, truth = make_views()
     calls = []
     res = reconstruct(
-        scans, T_FLANGE_CAMERA, voxel=0.003, anchor="first", progress=lambda i, n, m: calls.append((i, n))
+        scans,
+        T_FLANGE_CAMERA,
+        ReconstructOptions(voxel=0.003, anchor="first"),
+        progress=lambda i, n, m: calls.append((i, n)),
     )
     assert calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
     assert all(res.accepted) and res.icp[0] is None and np.array_equal(res.corrections[0], np.eye(4))
@@ -83,8 +86,8 @@ def test_reconstruct_corrects_kinematic_errors_against_the_growing_model():
 
 def test_mean_anchor_places_the_model_by_all_views_not_the_first():
     scans, truth = make_views(first_too=True)  # every view's kinematic pose is off, differently
-    first = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, anchor="first")
-    mean = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003)
+    first = reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003, anchor="first"))
+    mean = reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003))
     assert np.array_equal(first.anchor_shift, np.eye(4)) and not np.allclose(mean.anchor_shift, np.eye(4))
 
     def err(res):
@@ -104,12 +107,12 @@ def test_mean_anchor_places_the_model_by_all_views_not_the_first():
 def test_unknown_anchor_is_refused():
     scans, _ = make_views(kin_error=False)
     with pytest.raises(DataError, match="anchor"):
-        reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, anchor="middle")
+        reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003, anchor="middle"))
 
 
 def test_without_registration_views_are_only_merged():
     scans, _ = make_views()
-    res = reconstruct(scans, T_FLANGE_CAMERA, voxel=None, register_to_model=False)
+    res = reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=None, register_to_model=False))
     assert all(np.array_equal(c, np.eye(4)) for c in res.corrections)
     assert len(res.cloud) == sum(len(s.cloud) for s in scans)
 
@@ -118,7 +121,9 @@ def test_implausible_correction_is_rejected_and_kinematics_kept():
     scans, _ = make_views()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, max_correction=(1e-5, 1e-5))
+        res = reconstruct(
+            scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003, max_correction=(1e-5, 1e-5))
+        )
     assert not any(res.accepted[1:]) and len(caught) == 3 and "rejected" in str(caught[0].message)
     assert all(np.array_equal(c, np.eye(4)) for c in res.corrections)
 
@@ -138,14 +143,14 @@ def test_implausible_correction_is_rejected_and_kinematics_kept():
 def test_bad_inputs_raise_data_error(mutate):
     scans, _ = make_views(kin_error=False)
     with pytest.raises(DataError) as err:
-        reconstruct(mutate(scans), T_FLANGE_CAMERA, voxel=0.003)
+        reconstruct(mutate(scans), T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003))
     assert err.value.fix
 
 
 def test_bad_voxel_or_hand_eye_raise_data_error():
     scans, _ = make_views(kin_error=False)
     with pytest.raises(DataError):
-        reconstruct(scans, T_FLANGE_CAMERA, voxel=-1.0)
+        reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=-1.0))
     with pytest.raises(DataError):
         merge_views(scans, np.zeros((4, 4)))
 
@@ -192,7 +197,7 @@ PLANTED = T_from_rotvec(np.deg2rad(0.5) * np.array([0.6, -0.48, 0.64]), [0.0012,
 
 def test_hand_eye_anchor_recovers_a_planted_hand_eye_error():
     scans, truth, T_fc = planted_views(PLANTED)
-    res = reconstruct(scans, T_fc, voxel=0.003, anchor="hand-eye")
+    res = reconstruct(scans, T_fc, ReconstructOptions(voxel=0.003, anchor="hand-eye"))
     fit = res.hand_eye
     assert fit.applied and fit.views == [0, 1, 2, 3, 4] and fit.passes == 2 and fit.spread_deg > 10
     # the corrected hand-eye is the true one within 0.1 mm / 0.02 deg (the error was 2.1 mm / 0.5 deg)
@@ -205,7 +210,7 @@ def test_hand_eye_anchor_recovers_a_planted_hand_eye_error():
         t, r = pose_error(T, T_true)
         assert t < 3e-4 and r < np.deg2rad(0.03)
     # better than averaging the views' kinematic placements
-    mean = reconstruct(scans, T_fc, voxel=0.003)
+    mean = reconstruct(scans, T_fc, ReconstructOptions(voxel=0.003))
 
     def worst(rec) -> float:
         return max(pose_error(T, T_true)[0] for T, T_true in zip(rec.T_base_camera, truth, strict=True))
@@ -217,11 +222,11 @@ def test_hand_eye_anchor_falls_back_to_the_mean_when_view_rotations_are_alike():
     scans, _ = make_views(first_too=True)  # every camera looks straight down: one rotation for all
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003, anchor="hand-eye")
+        res = reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003, anchor="hand-eye"))
     assert not res.hand_eye.applied and "not observable" in res.hand_eye.note
     assert np.array_equal(res.hand_eye.D, np.eye(4)) and res.hand_eye.spread_deg < 1.0
     assert any("placed the model by the mean anchor" in str(w.message) for w in caught)
-    mean = reconstruct(scans, T_FLANGE_CAMERA, voxel=0.003)
+    mean = reconstruct(scans, T_FLANGE_CAMERA, ReconstructOptions(voxel=0.003))
     for a, b in zip(res.T_base_camera, mean.T_base_camera, strict=True):
         assert np.allclose(a, b, atol=1e-12)
 
@@ -233,7 +238,9 @@ def test_hand_eye_anchor_leaves_out_a_refused_view():
     scans[3] = PosedScan(scans[3].cloud, bad, timestamp=3.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = reconstruct(scans, T_fc, voxel=0.003, anchor="hand-eye", max_correction=(0.006, 0.1))
+        res = reconstruct(
+            scans, T_fc, ReconstructOptions(voxel=0.003, anchor="hand-eye", max_correction=(0.006, 0.1))
+        )
     assert not res.accepted[3] and any("view 3" in str(w.message) for w in caught)
     fit = res.hand_eye
     assert fit.applied and 3 not in fit.views and len(fit.views) == 4
@@ -245,13 +252,13 @@ def test_default_anchor_is_still_the_mean_and_fits_no_hand_eye():
     from weldcell.plugins.scan_plan.stages import ReconstructSettings
 
     scans, _, T_fc = planted_views(PLANTED)
-    res = reconstruct(scans, T_fc, voxel=0.003)
+    res = reconstruct(scans, T_fc, ReconstructOptions(voxel=0.003))
     assert res.hand_eye is None and res.cloud.meta["anchor"] == "mean"
     s = ReconstructSettings()
     assert s.anchor == "mean" and s.hand_eye_passes == 2
     assert ReconstructSettings(anchor="hand-eye", hand_eye_passes=0).anchor == "hand-eye"
     with pytest.raises(DataError, match="hand_eye_passes"):
-        reconstruct(scans, T_fc, voxel=0.003, anchor="hand-eye", hand_eye_passes=-1)
+        reconstruct(scans, T_fc, ReconstructOptions(voxel=0.003, anchor="hand-eye", hand_eye_passes=-1))
 
 
 def test_fit_hand_eye_solves_exact_poses_and_measures_rotation_spread():
@@ -302,11 +309,11 @@ def test_reconstruct_command_reports_the_hand_eye_correction(tmp_path):
 
 
 def test_icp_information_shows_which_directions_the_geometry_constrains():
-    from weldcell.plugins.scan_plan.registration import linear_icp, point_to_plane_information
+    from weldcell.plugins.scan_plan.registration import IcpOptions, linear_icp, point_to_plane_information
 
     rng = np.random.default_rng(4)
     plane = np.c_[rng.uniform(-0.05, 0.05, (3000, 2)), rng.normal(0.0, 1e-4, 3000)]
-    res = linear_icp(plane + [0, 0, 0.001], plane, max_correspondence_distance=0.01)
+    res = linear_icp(plane + [0, 0, 0.001], plane, IcpOptions(max_correspondence_distance=0.01))
     # twist (omega, p): a plane z = 0 constrains p_z, omega_x and omega_y, not p_x, p_y or omega_z
     d = np.diag(res.information)
     assert d[5] > 0.9 and max(d[3], d[4]) < 1e-3 * d[5] and d[2] < 1e-3 * min(d[0], d[1])

@@ -9,7 +9,13 @@ import pytest
 from scipy.spatial import cKDTree
 from weldcell.plugins.scan_plan.cloud_numerics import pca_normals, voxel_downsample
 from weldcell.plugins.scan_plan.metrics import fitness
-from weldcell.plugins.scan_plan.registration import LazyNormals, NearestCache, linear_icp, point_to_plane_step
+from weldcell.plugins.scan_plan.registration import (
+    IcpOptions,
+    LazyNormals,
+    NearestCache,
+    linear_icp,
+    point_to_plane_step,
+)
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import T_from_rotvec, invert, pose_error, transform_points
 
@@ -33,7 +39,12 @@ def _pair(noise: float = 0.0002, outliers: int = 0):
 
 def test_recovers_known_transform_with_given_normals():
     source, target, normals, T_true = _pair()
-    res = linear_icp(source, target, normals, max_correspondence_distance=0.05, max_iterations=50)
+    res = linear_icp(
+        source,
+        target,
+        IcpOptions(max_correspondence_distance=0.05, max_iterations=50),
+        target_normals=normals,
+    )
     dt, dr = pose_error(res.T, T_true)
     assert dt < 2e-4 and dr < np.deg2rad(0.02)
     assert res.converged and res.iterations < 50
@@ -50,7 +61,7 @@ def test_recovers_known_transform_with_given_normals():
 def test_recovers_known_transform_with_pca_normals_and_paper_update():
     source, target, _, T_true = _pair()
     for update in ("exact", "linear"):
-        res = linear_icp(source, target, max_correspondence_distance=0.05, update=update)
+        res = linear_icp(source, target, IcpOptions(max_correspondence_distance=0.05, update=update))
         dt, dr = pose_error(res.T, T_true)
         assert dt < 3e-4 and dr < np.deg2rad(0.03), update
 
@@ -58,16 +69,23 @@ def test_recovers_known_transform_with_pca_normals_and_paper_update():
 def test_fitness_is_eq20_inliers_over_target_points():
     source, target, normals, T_true = _pair(noise=0.0)
     half = source[::2]
-    res = linear_icp(half, target, normals, T_true, max_correspondence_distance=0.004)
+    res = linear_icp(
+        half, target, IcpOptions(max_correspondence_distance=0.004), target_normals=normals, init=T_true
+    )
     assert res.fitness == pytest.approx(len(half) / len(target) * res.inlier_fraction)
     assert res.fitness == pytest.approx(len(half) / len(target), rel=0.02)
 
 
 def test_robust_kernel_resists_outliers():
     source, target, normals, T_true = _pair(outliers=6000)
-    plain = linear_icp(source, target, normals, max_correspondence_distance=0.05)
+    plain = linear_icp(source, target, IcpOptions(max_correspondence_distance=0.05), target_normals=normals)
     for kernel in ("huber", "tukey"):
-        robust = linear_icp(source, target, normals, max_correspondence_distance=0.05, robust=kernel)
+        robust = linear_icp(
+            source,
+            target,
+            IcpOptions(max_correspondence_distance=0.05, robust=kernel),
+            target_normals=normals,
+        )
         dt, dr = pose_error(robust.T, T_true)
         assert dt < 5e-4 and dr < np.deg2rad(0.05), kernel
         assert dt < pose_error(plain.T, T_true)[0]
@@ -75,7 +93,9 @@ def test_robust_kernel_resists_outliers():
 
 def test_initial_guess_is_used():
     source, target, normals, T_true = _pair()
-    res = linear_icp(source, target, normals, T_true, max_correspondence_distance=0.01)
+    res = linear_icp(
+        source, target, IcpOptions(max_correspondence_distance=0.01), target_normals=normals, init=T_true
+    )
     assert res.history[0]["fitness"] > 0.95 * res.fitness and res.iterations <= 5
 
 
@@ -108,9 +128,11 @@ def test_nearest_cache_matches_a_full_query(n_source):
 
 def test_lazy_normals_give_the_result_of_all_normals_and_report_distances():
     source, target, _, T_true = _pair()
-    full = linear_icp(source, target, pca_normals(target, k=20), max_correspondence_distance=0.05)
+    full = linear_icp(
+        source, target, IcpOptions(max_correspondence_distance=0.05), target_normals=pca_normals(target, k=20)
+    )
     tree = cKDTree(target)
-    lazy = linear_icp(source, target, max_correspondence_distance=0.05, target_tree=tree)
+    lazy = linear_icp(source, target, IcpOptions(max_correspondence_distance=0.05), target_tree=tree)
     assert lazy.iterations == full.iterations and lazy.fitness == full.fitness
     assert np.allclose(lazy.T, full.T, atol=1e-12)
     # the distances are those of a nearest-neighbour search at the initial and the final pose
@@ -124,7 +146,9 @@ def test_lazy_normals_give_the_result_of_all_normals_and_report_distances():
     ref = pca_normals(target, k=20)[::7]
     assert np.allclose(np.abs(np.einsum("ij,ij->i", ln.table[::7, :3], ref)), 1.0, atol=1e-9)
     with pytest.raises(DataError):
-        linear_icp(source, target, max_correspondence_distance=0.05, target_tree=cKDTree(target[:-1]))
+        linear_icp(
+            source, target, IcpOptions(max_correspondence_distance=0.05), target_tree=cKDTree(target[:-1])
+        )
 
 
 @pytest.mark.data
@@ -138,7 +162,7 @@ def test_real_lidar_pair_matches_reference():
     T_ref = np.loadtxt(DATA / "T_target_source.txt")
     s, t = voxel_downsample(src, voxel_size=0.25), voxel_downsample(tgt, voxel_size=0.25)
     # identity start, 0.49 m away from the reference: the correspondence distance must exceed the offset
-    res = linear_icp(s, t, max_correspondence_distance=0.5, max_iterations=50)
+    res = linear_icp(s, t, IcpOptions(max_correspondence_distance=0.5, max_iterations=50))
     dt, dr = pose_error(res.T, T_ref)
     dt0, _ = pose_error(np.eye(4), T_ref)
     assert dt0 > 0.4
@@ -165,28 +189,44 @@ def test_bad_inputs_raise_data_error(kwargs):
         source=target + 0.001, target=target, target_normals=normals, max_correspondence_distance=0.01
     )
     args.update(kwargs)
-    with pytest.raises(DataError) as err:
-        linear_icp(**args)
+    options = {k: args.pop(k) for k in ("max_correspondence_distance", "robust", "update") if k in args}
+    with pytest.raises(DataError) as err:  # bad options are refused when the options are made
+        linear_icp(options=IcpOptions(**options), **args)
     assert err.value.fix
 
 
 def test_no_overlap_raises_data_error():
     target, normals = corner_workpiece(spacing=0.01)
     with pytest.raises(DataError, match="no correspondences"):
-        linear_icp(target + 5.0, target, normals, max_correspondence_distance=0.01)
+        linear_icp(target + 5.0, target, IcpOptions(max_correspondence_distance=0.01), target_normals=normals)
 
 
 def test_prior_weighs_the_correction_against_the_data():
     source, target, normals, T_true = _pair()
-    free = linear_icp(source, target, normals, max_correspondence_distance=0.05)
-    loose = linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=(10.0, 10.0))
+    free = linear_icp(source, target, IcpOptions(max_correspondence_distance=0.05), target_normals=normals)
+    loose = linear_icp(
+        source,
+        target,
+        IcpOptions(max_correspondence_distance=0.05, prior=(10.0, 10.0)),
+        target_normals=normals,
+    )
     assert np.allclose(loose.T, free.T, atol=1e-6)  # a vague prior changes nothing
     # a prior of the size of the true offset still lets a well-constrained part register
-    fair = linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=(0.02, np.deg2rad(5)))
+    fair = linear_icp(
+        source,
+        target,
+        IcpOptions(max_correspondence_distance=0.05, prior=(0.02, np.deg2rad(5))),
+        target_normals=normals,
+    )
     dt, dr = pose_error(fair.T, T_true)
     assert dt < 3e-4 and dr < np.deg2rad(0.03)
     # a prior far tighter than the data's pull keeps the initial guess
-    tight = linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=(1e-7, 1e-7))
+    tight = linear_icp(
+        source,
+        target,
+        IcpOptions(max_correspondence_distance=0.05, prior=(1e-7, 1e-7)),
+        target_normals=normals,
+    )
     dt, dr = pose_error(tight.T, np.eye(4))
     assert dt < 1e-4 and dr < np.deg2rad(0.01)
 
@@ -198,8 +238,8 @@ def test_prior_keeps_weakly_observable_directions_near_the_initial_guess():
     rng = np.random.default_rng(5)
     tgt = np.c_[rng.uniform(-0.1, 0.1, (4000, 2)), rng.normal(0, 3e-4, 4000)]
     src = np.c_[rng.uniform(-0.1, 0.1, (4000, 2)), 0.001 + rng.normal(0, 3e-4, 4000)]
-    plain = linear_icp(src, tgt, None, max_correspondence_distance=0.01)
-    held = linear_icp(src, tgt, None, max_correspondence_distance=0.01, prior=(0.002, np.deg2rad(0.3)))
+    plain = linear_icp(src, tgt, IcpOptions(max_correspondence_distance=0.01))
+    held = linear_icp(src, tgt, IcpOptions(max_correspondence_distance=0.01, prior=(0.002, np.deg2rad(0.3))))
     for r in (plain, held):
         assert abs(r.T[2, 3] + 0.001) < 5e-5
     assert np.linalg.norm(plain.T[:2, 3]) > 1.5e-3 and abs(plain.T[1, 0]) > np.deg2rad(2)  # wandered
@@ -210,4 +250,6 @@ def test_prior_keeps_weakly_observable_directions_near_the_initial_guess():
 def test_bad_prior_is_refused(prior):
     source, target, normals, _ = _pair()
     with pytest.raises(DataError, match="prior"):
-        linear_icp(source, target, normals, max_correspondence_distance=0.05, prior=prior)
+        linear_icp(
+            source, target, IcpOptions(max_correspondence_distance=0.05, prior=prior), target_normals=normals
+        )

@@ -693,7 +693,7 @@ def test_y_pipe_scanned_and_merged_like_table_1_is_one_seam_on_the_root():
     from weldcell.hal.sim.camera_model import RaycastCamera
     from weldcell.hal.sim.workpieces import make_workpiece
     from weldcell.plugins.scan_plan.metrics import pose_rmse
-    from weldcell.plugins.scan_plan.reconstruct import reconstruct
+    from weldcell.plugins.scan_plan.reconstruct import ReconstructOptions, reconstruct
     from weldcell.plugins.scan_plan.stages import (
         BilateralDenoiser,
         BilateralSettings,
@@ -717,7 +717,7 @@ def test_y_pipe_scanned_and_merged_like_table_1_is_one_seam_on_the_root():
     poses = [frame_from_axes(np.cross(c - e, [0.0, 0.0, 1.0]), c - e, e) for e in eyes]
     poses.append(frame_from_axes([1.0, 0.0, 0.0], [0.0, 0.0, -1.0], c + [0.0, 0.0, 0.5]))
     scans = [PosedScan(PointCloud(cam.render(T, rng=rng).to_points(), frame="camera"), T, 0.0) for T in poses]
-    rec = reconstruct(scans, np.eye(4), voxel=VOXEL, max_correspondence_distance=0.005)
+    rec = reconstruct(scans, np.eye(4), ReconstructOptions(voxel=VOXEL, max_correspondence_distance=0.005))
     rec.cloud.meta["viewpoints"] = [T[:3, 3].tolist() for T in poses]
     res = EdgeSeamExtractor(EdgeSeamSettings())(BilateralDenoiser(BilateralSettings())(rec.cloud))
     assert len(res.seams) == 1 and res.seams[0].closed
