@@ -72,7 +72,9 @@ DEFAULTS: dict = {
     "intrinsics": None,  # (K, dist) for board photos
     "calibrate_intrinsics": False,  # no intrinsics: calibrate them from the board photos (Zhang)
     "seed": 0,
-    "time_limit": 60.0,  # s: Algorithm 1 takes no new pair after this (bounded run time; None = no limit)
+    # Algorithm 1 takes no new pair after this many verifier calls (bounded run time, repeatable)
+    "max_verifications": 2000,
+    "time_limit": None,  # s: the same cut by wall-clock time (not repeatable: depends on the host's load)
 }
 
 
@@ -412,6 +414,7 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
             budget=int(s["budget"]),
             seed=s["seed"],
             time_limit=s["time_limit"],
+            max_verifications=s["max_verifications"],
         )
 
     pr = run(verifier, sees)
@@ -420,8 +423,9 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         pr, used = run(ConsensusVerifier(c, dst), True), "consensus (ICP failed)"
     if pr.timed_out:
         warnings.append(
-            f"Algorithm 1 stopped at its time limit ({s['time_limit']:g} s) after {pr.n_used} of {len(c)} "
-            "pairs; the pool is the best found so far (raise time_limit or thin the flange model)"
+            f"Algorithm 1 stopped at its limit ({pr.events[-1]}) after {pr.n_used} of {len(c)} "
+            "pairs; the pool is the best found so far (raise max_verifications/time_limit or thin the "
+            "flange model)"
         )
     X = pr.H_compensated if (s["compensate"] and pr.H_compensated is not None) else pr.H
     if pr.H_refit is not None:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 from weldcell.hal.iso9409 import ISO9409_1, check_dimensions, iso9409_dimensions
+from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.sdk.cloud import UNIT_SCALE
 from weldcell.sdk.errors import DataError
 
@@ -227,7 +228,8 @@ def read_model_points(path: str | Path, n_points: int = 30000) -> np.ndarray:
             why = f" (the reader said: {said[0]})" if said else ""
             raise DataError(f"{path}: mesh has no triangles{why}", "export the flange model again")
         o3d.utility.random.seed(0)
-        return np.asarray(mesh.sample_points_uniformly(n_points).points)
+        with open3d_serial():
+            return np.asarray(mesh.sample_points_uniformly(n_points).points)
     with quiet_native_output():
         pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
     return np.asarray(pc.points)

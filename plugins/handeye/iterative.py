@@ -177,6 +177,7 @@ def iterative_pool(
     budget: int = 64,
     seed: int | np.random.Generator | None = 0,
     time_limit: float | None = None,
+    max_verifications: int | None = None,
 ) -> PoolResult:
     """Run Algorithm 1 over pairs ``src[i] -> dst[i]`` in the order given (the collection order).
 
@@ -203,8 +204,11 @@ def iterative_pool(
     hypothesis chosen by the verifier, and the final transform averages the noise of all consistent
     pairs instead of four (§3.1 study in docs/methods/hand-eye.md).
 
-    ``time_limit`` (s): no new pair is taken once this much time has passed (``timed_out``; the pool
-    found so far is returned), so a slow verifier cannot hold a run indefinitely.
+    ``max_verifications``: no new pair is taken once the verifier has been called this many times
+    (``timed_out``; the pool found so far is returned), so a slow verifier cannot hold a run
+    indefinitely; the cut falls at the same pair on every run. ``time_limit`` (s) is the same cut by
+    wall-clock time, the one deliberate exception to repeatability: where it cuts depends on the
+    host's speed and load, so it is off by default.
     """
     src = np.asarray(src, float).reshape(-1, 3)
     dst = np.asarray(dst, float).reshape(-1, 3)
@@ -223,6 +227,10 @@ def iterative_pool(
         if time_limit is not None and time.monotonic() - t0 > time_limit:
             timed_out = True
             events.append(f"time limit {time_limit:g} s reached after {nxt} pairs")
+            break
+        if max_verifications is not None and sc.calls >= max_verifications:
+            timed_out = True
+            events.append(f"verification limit {max_verifications} reached after {nxt} pairs")
             break
         if verifier_sees_count and np.isfinite(best.cost):
             pub = sc.rescore(pub, nxt + 1)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
+from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.sdk.errors import DataError
 
 
@@ -104,7 +105,8 @@ def segment_flange(points: np.ndarray, settings: SegmentSettings | None = None) 
     report["n_cluster"] = int(len(cluster))
     cpc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cluster))
     o3d.utility.random.seed(0)
-    plane, idx = cpc.segment_plane(s.plane_distance, 3, s.plane_iterations)
+    with open3d_serial():  # threaded RANSAC draws in a load-dependent order
+        plane, idx = cpc.segment_plane(s.plane_distance, 3, s.plane_iterations)
     face = cluster[np.asarray(idx, dtype=int)]
     n = np.asarray(plane[:3], float)
     n /= np.linalg.norm(n)

@@ -21,6 +21,7 @@ from pydantic import Field
 from weldcell.plugins.handeye.calibrate import calibrate
 from weldcell.plugins.handeye.circle import ransac_circle
 from weldcell.plugins.handeye.flange_model import ISO9409_1, FlangeModel, iso9409_model, load_clean_model
+from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
 from weldcell.plugins.handeye.verification import (
     ConsensusVerifier,
@@ -117,8 +118,17 @@ class FlangeSettings(Settings):
     )
     pool_budget: int = Field(64, gt=0, description="'wide' pool search: 4-subsets tried per new pair")
     compensate: bool = Field(False, description="apply eq. 21 (H @ e_optimal) to Algorithm 1's result")
+    pool_max_verifications: int | None = Field(
+        2000,
+        gt=0,
+        description="Algorithm 1 takes no new pair after this many verifier calls (bounded run time; the "
+        "same cut on every run)",
+    )
     pool_time_limit: float | None = Field(
-        60.0, gt=0, description="Algorithm 1 takes no new pair after this many seconds (bounded run time) [s]"
+        None,
+        gt=0,
+        description="Algorithm 1 takes no new pair after this many seconds; not repeatable (where it cuts "
+        "depends on the host's load), so off unless set [s]",
     )
 
 
@@ -295,7 +305,8 @@ class FlangeHandEye:
             if len(rest) < seg.cluster_min_points:
                 break
             pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rest))
-            _, idx = pc.segment_plane(self.s.plane_distance, 3, seg.plane_iterations)
+            with open3d_serial():  # threaded RANSAC draws in a load-dependent order
+                _, idx = pc.segment_plane(self.s.plane_distance, 3, seg.plane_iterations)
             on = np.zeros(len(rest), bool)
             on[np.asarray(idx, int)] = True
             try:
@@ -358,14 +369,15 @@ class FlangeHandEye:
         x = np.cos(ang) * u + np.sin(ang) * v
         T0 = frame_from_axes(x, z, m.p_cam)
         face_model = self.model[self.model[:, 2] > -0.0003]  # the face (a CAD model's is voxel-thinned)
-        reg = o3d.pipelines.registration.registration_icp(
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(face_model)),
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face)),
-            0.001,
-            T0,
-            o3d.pipelines.registration.TransformationEstimationPointToPoint(),
-            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30),
-        )
+        with open3d_serial():  # repeatable: the threaded correspondence sums vary with the host's load
+            reg = o3d.pipelines.registration.registration_icp(
+                o3d.geometry.PointCloud(o3d.utility.Vector3dVector(face_model)),
+                o3d.geometry.PointCloud(o3d.utility.Vector3dVector(m.face)),
+                0.001,
+                T0,
+                o3d.pipelines.registration.TransformationEstimationPointToPoint(),
+                o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30),
+            )
         T = np.asarray(reg.transformation)
         m.report["pose"] = {
             "holes_violated": int(inside.min()),
@@ -399,6 +411,7 @@ class FlangeHandEye:
             "budget": self.s.pool_budget,
             "compensate": self.s.compensate,
             "time_limit": self.s.pool_time_limit,
+            "max_verifications": self.s.pool_max_verifications,
             "bootstrap": self.s.bootstrap,
         }
 

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.sdk.geometry import T_to_rpy, invert
 from weldcell.sdk.pointfit import scaled_svd_fit
 
@@ -110,14 +111,15 @@ class IcpVerifier:
 
         pred = invert(H) @ np.asarray(self.D_v, float)
         src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self._model @ pred[:3, :3].T + pred[:3, 3]))
-        reg = o3d.pipelines.registration.registration_icp(
-            src,
-            self._target,
-            self.max_distance,
-            np.eye(4),
-            o3d.pipelines.registration.TransformationEstimationPointToPoint(),
-            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.iterations),
-        )
+        with open3d_serial():  # repeatable: the threaded correspondence sums vary with the host's load
+            reg = o3d.pipelines.registration.registration_icp(
+                src,
+                self._target,
+                self.max_distance,
+                np.eye(4),
+                o3d.pipelines.registration.TransformationEstimationPointToPoint(),
+                o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.iterations),
+            )
         self.calls += 1
         if not self.best or reg.fitness > self.best["fitness"]:
             self.best = {"fitness": float(reg.fitness), "rmse": float(reg.inlier_rmse)}

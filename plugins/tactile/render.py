@@ -78,12 +78,13 @@ def render_tag_image(
     black: float = 25.0,
     white: float = 215.0,
     margin: float = 0.3,
-    rng: np.random.Generator | None = None,
+    rng: np.random.Generator | int = 0,
 ) -> np.ndarray:
     """Grey uint8 image (H, W) of the tag at pose ``T_cam_tag`` seen by the in-finger camera.
 
     ``margin`` is the white quiet zone around the black square as a fraction of its side. Pixels off the
-    tag show a background with a soft vignette (the inside of the finger).
+    tag show a background with a soft vignette (the inside of the finger). ``rng``: the pixel noise's
+    generator or seed (the same seed gives the same image).
     """
     cv2 = cv2_module()
     T = np.asarray(T_cam_tag, dtype=float)
@@ -136,7 +137,7 @@ def render_tag_image(
     if blur_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_sigma)
     if noise_std > 0:
-        rng = rng if rng is not None else np.random.default_rng()
+        rng = np.random.default_rng(rng)
         img = img + rng.normal(0.0, noise_std, img.shape).astype(np.float32)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
