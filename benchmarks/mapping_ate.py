@@ -4,6 +4,7 @@ per frame per stage on the simulated site, with ablations.
     .venv/bin/python benchmarks/mapping_ate.py                      # full protocol: 100 m, 640x360, 5 fps
     .venv/bin/python benchmarks/mapping_ate.py --length 30 --decimation 4 --ablations
     .venv/bin/python benchmarks/mapping_ate.py --decimation 1 --fps 15   # ZED 2i 720p at 15 fps (slow here)
+    .venv/bin/python benchmarks/mapping_ate.py --resolution VGA --decimation 1  # ZED 2i VGA mode, 672x376
     .venv/bin/python benchmarks/mapping_sweep.py ...   # the estimator alone on several seeds (faster)
 
 Runs the ``map`` job (profiles/cell4-map-sim.toml with the route/camera/GNSS overridden) and prints a
@@ -34,20 +35,65 @@ PAPER = {
 }
 
 
+class ZedModePlugin:
+    """``camera.sim-zed``: ``camera.sim`` with a ``resolution`` setting (a real ZED 2i video mode, e.g. VGA
+    672x376, :func:`weldcell.hal.sim.camera_model.zed_mode`), for this benchmark until ``camera.sim``
+    itself has the setting."""
+
+    from weldcell.sdk.hookspecs import hookimpl
+
+    @hookimpl
+    def weldcell_register_devices(self, register) -> None:
+        from typing import Literal
+
+        from weldcell.hal.sim.camera_model import zed_mode
+        from weldcell.plugins.sim import factories as f
+        from weldcell.plugins.sim import settings as s
+        from weldcell.sdk.descriptors import DeviceSpec
+
+        class ZedSimSettings(s.SimCameraSettings):
+            resolution: Literal["2K", "FHD", "HD", "VGA"] | None = None
+
+        def factory(settings, ctx):
+            cam = f.camera(settings, ctx)
+            if settings.resolution:
+                cam.preset = zed_mode(settings.resolution, cam.preset)
+            return cam
+
+        register(
+            DeviceSpec(
+                name="camera.sim-zed",
+                kind="depth_camera",
+                summary="camera.sim at a ZED 2i video mode",
+                settings=ZedSimSettings,
+                factory=factory,
+                simulated=True,
+                probe=f.probe,
+            )
+        )
+
+
 def run_config(name: str, args, estimator: dict, gnss_mode: str | None, tmp: Path) -> dict:
+    from weldcell.hal.sim.camera_model import get_preset, zed_mode
     from weldcell.sdk.jobs import run_job
     from weldcell.sdk.plugins import PluginManager
 
     est = ", ".join(f"{k} = {json.dumps(v)}" for k, v in estimator.items())
+    preset = zed_mode(args.resolution) if args.resolution else get_preset("zed2i")
     text = [
         f'extends = "{PROFILE}"',
         "[job.settings]",
         f"route = {{ length = {args.length}, cruise_speed = {args.speed} }}",
         "revisit = { enabled = false }",  # the first visit only: the second is benchmarks/relocalize.py
         f"estimator = {{ {est} }}" if est else "",
+        # the estimator's stereo noise is the camera's (sigma_z / z², doubles at VGA), not assumed
+        f"frontend = {{ depth_noise = {preset.sigma2:.6g} }}",
+        "[devices.camera]",
+        'plugin = "camera.sim-zed"' if args.resolution else 'plugin = "camera.sim"',
         "[devices.camera.settings]",
         f"decimation = {args.decimation}",
         f"fps = {args.fps}",
+        f'resolution = "{args.resolution}"' if args.resolution else "",
         f"[cell]\nseed = {args.seed}",
     ]
     if gnss_mode:
@@ -55,6 +101,8 @@ def run_config(name: str, args, estimator: dict, gnss_mode: str | None, tmp: Pat
     p = tmp / f"{name}.toml"
     p.write_text("\n".join(text) + "\n")
     pm = PluginManager(discover=True)
+    if args.resolution:
+        pm.register(ZedModePlugin(), "zed-mode-benchmark")
     t0 = time.perf_counter()
     run, result = run_job(p, pm, runs_dir=tmp / "runs")
     f = result["figures"]
@@ -87,6 +135,12 @@ def main() -> None:
     ap.add_argument("--decimation", type=int, default=2, help="camera decimation (1 = 1280x720)")
     ap.add_argument("--fps", type=float, default=5.0, help="camera frame rate [Hz]")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--resolution",
+        choices=["2K", "FHD", "HD", "VGA"],
+        help="a real ZED 2i video mode (VGA = 672x376); with --decimation 1",
+    )
+    ap.add_argument("--keep", type=Path, help="keep the runs here (default: a temporary folder)")
     ap.add_argument("--ablations", action="store_true", help="also without IMU / GNSS / vision, and with RTK")
     ap.add_argument("--json", type=Path, help="write the numbers here")
     args = ap.parse_args()
@@ -100,9 +154,11 @@ def main() -> None:
         ]
     rows = {}
     with tempfile.TemporaryDirectory() as d:
+        where = args.keep or Path(d)
+        where.mkdir(parents=True, exist_ok=True)
         for i, (name, est, gnss) in enumerate(configs):
             try:
-                rows[name] = run_config(f"c{i}", args, est, gnss, Path(d))
+                rows[name] = run_config(f"c{i}", args, est, gnss, where)
             except Exception as e:  # noqa: BLE001 - an ablation that fails is a result too
                 rows[name] = {"failed": str(e).splitlines()[0]}
                 print(f"{name:32s} FAILED: {rows[name]['failed']}", flush=True)

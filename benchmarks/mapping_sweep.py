@@ -52,6 +52,8 @@ class Sequence:
     gnss: list
     T_imu_cam: np.ndarray
     T_imu_ant: np.ndarray
+    depth_noise: float
+    """The camera's stereo noise coefficient sigma_z / z² [1/m] (the estimator's ``frontend.depth_noise``)."""
 
 
 def _mounts():
@@ -63,8 +65,23 @@ def _mounts():
     return T_base_cam, T_base_imu, T_base_ant
 
 
+def camera_preset(resolution: str | None):
+    """The ZED 2i preset at a real video mode (``--resolution``: HD, VGA...) or its native HD720."""
+    from weldcell.hal.sim.camera_model import get_preset, zed_mode
+
+    return zed_mode(resolution) if resolution else get_preset("zed2i")
+
+
 def make_sequence(
-    seed: int, length: float, decimation: int, fps: float, gnss_mode: str, depth_noise: bool, cache: Path
+    seed: int,
+    length: float,
+    decimation: int,
+    fps: float,
+    gnss_mode: str,
+    depth_noise: bool,
+    cache: Path,
+    resolution: str | None = None,
+    frames: int | None = None,
 ) -> Sequence:
     """Render (or load from ``cache``) one route of the site and sample its IMU and GNSS."""
     from weldcell.hal.readings import Intrinsics
@@ -97,15 +114,18 @@ def make_sequence(
 
     gsim = GnssSimulator(GnssModel(mode=gnss_mode), ant, site.under_roof, site.distance_to_steel, seed + 5)
     gnss = [g for g in gsim.samples_until(route.duration) if g["enu"] is not None]
-    t = np.arange(0.0, route.duration, 1.0 / fps)
+    t = np.arange(0.0, route.duration, 1.0 / fps)[:frames]
     Tc = np.array([route.pose(x) @ T_base_cam for x in t])
-    f = cache / f"seq_s{seed}_L{length:g}_d{decimation}_f{fps:g}_n{int(depth_noise)}.npz"
+    preset = camera_preset(resolution)
+    mode = f"_{resolution.upper()}" if resolution else ""
+    part = f"_first{frames}" if frames else ""
+    f = cache / f"seq_s{seed}_L{length:g}_d{decimation}{mode}_f{fps:g}_n{int(depth_noise)}{part}_v2.npz"
     if f.is_file():
         z = np.load(f)
         rgb, depth = z["rgb"], z["depth"]
         K = Intrinsics(*[int(v) for v in z["K"][:2]], *[float(v) for v in z["K"][2:]])
     else:
-        cam = RgbdCamera("zed2i", site.world.meshes(), decimation=decimation, noise=depth_noise)
+        cam = RgbdCamera(preset, site.world.meshes(), decimation=decimation, noise=depth_noise)
         rng = np.random.default_rng(seed + 1)
         rgbs, depths = [], []
         for T in Tc:
@@ -119,19 +139,72 @@ def make_sequence(
     T_imu_cam = np.linalg.inv(T_base_imu) @ T_base_cam
     T_imu_ant = np.linalg.inv(T_base_imu) @ T_base_ant
     return Sequence(
-        seed, t, rgb, depth, Tc, K, (ti, acc, gyr), (truth["b_g"], truth["b_a"]), gnss, T_imu_cam, T_imu_ant
+        seed,
+        t,
+        rgb,
+        depth,
+        Tc,
+        K,
+        (ti, acc, gyr),
+        (truth["b_g"], truth["b_a"]),
+        gnss,
+        T_imu_cam,
+        T_imu_ant,
+        preset.sigma2,
     )
 
 
-def run(seq: Sequence, cfg: dict) -> dict:
+STAGES = {
+    "_predict": "IMU prediction (preintegration)",
+    "extract": "ORB extraction",
+    "_track": "tracking PnP (by projection)",
+    "fill_missing_depth": "eq. 4 triangulation",
+    "_visual_factors": "key-frame PnP links + covariance",
+    "_update": "iSAM2 update",
+    "_close_loops": "loop check",
+}
+
+
+def instrument(est) -> dict[str, list[tuple[float, float]]]:
+    """Time the estimator's stages (CPU of the whole process, all threads, and wall) per call: the
+    benchmark wraps the methods, the estimator is unchanged. Returns {stage: [(cpu s, wall s), ...]}."""
+    from weldcell.plugins.mapping import estimator as module
+
+    spent: dict[str, list[tuple[float, float]]] = {v: [] for v in STAGES.values()}
+
+    def timed(fn, name):
+        def wrapper(*a, **kw):
+            c0, w0 = time.process_time(), time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                spent[name].append((time.process_time() - c0, time.perf_counter() - w0))
+
+        return wrapper
+
+    for attr, name in STAGES.items():
+        if attr == "extract":
+            est.fe.extract = timed(est.fe.extract, name)
+        elif attr == "fill_missing_depth":
+            module.fill_missing_depth = timed(module.fill_missing_depth, name)
+        else:
+            setattr(est, attr, timed(getattr(est, attr), name))
+    return spent
+
+
+def run(seq: Sequence, cfg: dict, stages: bool = False) -> dict:
     """The estimator over ``seq`` with the configuration's settings; ATE of the key frames."""
     from weldcell.plugins.mapping.estimator import VioEstimator
     from weldcell.plugins.mapping.frontend import OrbFrontEnd
     from weldcell.plugins.mapping.interp import ate_rmse
     from weldcell.plugins.mapping.settings import MapJobSettings
 
-    s = MapJobSettings.model_validate({k: cfg[k] for k in ("estimator", "frontend", "imu_noise") if k in cfg})
+    given = {k: cfg[k] for k in ("estimator", "frontend", "imu_noise") if k in cfg}
+    # the stereo noise of the camera that rendered the sequence, not assumed
+    given["frontend"] = {"depth_noise": seq.depth_noise} | given.get("frontend", {})
+    s = MapJobSettings.model_validate(given)
     est = VioEstimator(s.estimator, OrbFrontEnd(s.frontend), seq.T_imu_cam, s.imu_noise, seq.T_imu_ant)
+    spent = instrument(est) if stages else {}
     ti, acc, gyr = seq.imu
     gi = 0
     truth = {}
@@ -172,6 +245,13 @@ def run(seq: Sequence, cfg: dict) -> dict:
             "all": 1000 * float(np.mean(cpu_fr + cpu_kf)),
         },
         "bias_g_err": float(np.abs(est.keyframes[-1].bias[3:] - seq.imu_bias[0][-1]).max()),
+        "stages_ms": {  # per call: CPU mean, wall mean, CPU std, wall std, calls
+            k: (*(1000 * np.mean(v, axis=0)), *(1000 * np.std(v, axis=0)), len(v))
+            for k, v in spent.items()
+            if v
+        },
+        "frames": len(seq.t),
+        "cpu_frames_ms": 1000 * np.array(cpu_fr + cpu_kf),
     }
 
 
@@ -218,11 +298,18 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--length", type=float, default=60.0, help="route length [m]")
     ap.add_argument("--decimation", type=int, default=4, help="camera decimation (1 = 1280x720)")
+    ap.add_argument(
+        "--resolution",
+        choices=["2K", "FHD", "HD", "VGA"],
+        help="a real ZED 2i video mode (VGA = 672x376) instead of HD720 decimated; use with --decimation 1",
+    )
     ap.add_argument("--fps", type=float, default=5.0)
+    ap.add_argument("--frames", type=int, help="only the first N camera frames (time per frame at 720p)")
     ap.add_argument("--configs", nargs="+", default=["full", "no-gnss", "rtk"])
     ap.add_argument("--cache", type=Path, default=Path("/tmp/weldcell-mapping-cache"))
     ap.add_argument("--list", action="store_true")
     ap.add_argument("--components", action="store_true", help="front-end CPU per component, then stop")
+    ap.add_argument("--stages", action="store_true", help="CPU and wall time per estimator stage")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     if args.components:
@@ -244,9 +331,15 @@ def main() -> None:
                 cfg.get("gnss", "standalone"),
                 cfg.get("depth_noise", True),
                 args.cache,
+                args.resolution,
+                args.frames,
             )
-            r = run(seq, cfg)
+            r = run(seq, cfg, args.stages)
             rows.setdefault(name, {})[seed] = r
+            for k, (cm, wm, cs, ws, n) in r.pop("stages_ms").items():
+                print(f"  {k:36s} CPU {cm:6.1f} ± {cs:5.1f} ms   wall {wm:6.1f} ± {ws:5.1f} ms   ({n} calls)")
+            fr = r.pop("cpu_frames_ms")
+            print(f"  per frame (CPU, all stages): {fr.mean():.1f} ± {fr.std():.1f} ms over {len(fr)} frames")
             tm = "  ".join(f"{k} {m:.0f}±{s:.0f} ms" for k, (m, s) in r["timing_ms"].items())
             c = r["cpu_ms"]
             tm += (

@@ -316,6 +316,48 @@ def get_preset(name: str | CameraPreset) -> CameraPreset:
     return PRESETS[key]
 
 
+ZED_RESOLUTIONS: dict[str, tuple[int, int, float]] = {
+    "2K": (2208, 1242, 2.0),
+    "FHD": (1920, 1080, 2.0),
+    "HD": (1280, 720, 1.0),
+    "VGA": (672, 376, 0.5),
+}
+"""The ZED 2i's video modes (HD2K, HD1080, HD720, VGA; per-eye pixels, the keys of its calibration file)
+and each mode's focal length relative to HD720: the factory calibration files give fx(2K) = fx(FHD) =
+2 fx(HD) = 4 fx(VGA) (2K and FHD read the sensor at full scale, FHD cropped; HD and VGA bin it)."""
+
+
+def zed_mode(resolution: str, preset: str | CameraPreset = "zed2i") -> CameraPreset:
+    """The ZED preset at one of its real video modes (:data:`ZED_RESOLUTIONS`): image size, focal length
+    and principal point of that mode, and the stereo noise of depth computed at that resolution
+    (sigma_z = subpixel · z² / (f · baseline) grows as f shrinks). Unlike ``decimation`` (which keeps the
+    native mode's depth noise and only reports fewer pixels), this is what the camera delivers in the mode.
+    """
+    key = str(resolution).strip().upper()
+    aliases = {"HD2K": "2K", "HD1080": "FHD", "HD720": "HD"}
+    key = aliases.get(key, key)
+    if key not in ZED_RESOLUTIONS:
+        raise DataError(
+            f"unknown ZED resolution {resolution!r}",
+            f"use one of {', '.join(ZED_RESOLUTIONS)} (HD2K 2208x1242, HD1080, HD720 1280x720, VGA 672x376)",
+        )
+    p = get_preset(preset)
+    if p.principle != "stereo" or not p.name.startswith("zed"):
+        raise DataError(f"camera preset '{p.name}' is not a ZED", "use preset 'zed2i' with a ZED resolution")
+    w, h, scale = ZED_RESOLUTIONS[key]
+    return replace(
+        p,
+        name=f"{p.name}-{key.lower()}",
+        width=w,
+        height=h,
+        fx=p.fx * scale,
+        fy=p.fy * scale,
+        cx=(w - 1) / 2,
+        cy=(h - 1) / 2,
+        sigma2=p.sigma2 / scale,
+    )
+
+
 # --------------------------------------------------------------------------------------------------
 # Depth images
 # --------------------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ suites; a profile selects them exactly like real devices (``robot.sim``, ``camer
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -134,10 +135,15 @@ class SimDepthCamera(DepthCamera):
         seed: int = 0,
         frame_time: float = 1 / 30,
         color: bool = False,
+        resolution: str | None = None,
     ) -> None:
         super().__init__(name, frame=name)
         self.world = world
         self.color = color
+        if resolution is not None:  # a ZED's video mode (HD720, VGA, ...): hal.sim.camera_model.zed_mode
+            from weldcell.hal.sim.camera_model import zed_mode
+
+            preset = zed_mode(resolution, preset)
         self.preset = preset
         self.parent = parent
         self.T_parent_camera = np.asarray(T_parent_camera, dtype=float)
@@ -472,7 +478,47 @@ class SimProjector(LaserProjector):
         self.image_points = np.zeros((0, 2))
 
 
-class SimImu(Imu):
+class _SimClockStream:
+    """Streaming on the simulated site, repeatable: every read delivers exactly the samples up to the
+    simulated clock.
+
+    The buffered stream's reader thread (:mod:`weldcell.hal.stream`) polls at wall-clock moments that
+    the machine's load decides; on its own it would hand the consumer a different cut of samples each
+    run (a GNSS fix one frame later, IMU noise drawn in other chunks). Here the reader thread and
+    ``read_available`` both *catch up* to the simulated clock under one lock and push what they produced
+    in order; so a read after the clock reached t holds every sample up to t, as a real device that kept
+    up would have delivered by then, and nothing depends on the threads' timing.
+    """
+
+    def _site_burst(self) -> list:
+        raise NotImplementedError
+
+    def _on_site(self) -> bool:
+        return getattr(self.world, "site", None) is not None
+
+    def _catch_up(self) -> None:
+        with self._clock_lock:
+            readings = self._site_burst()
+            s = self._stream
+            if readings and s is not None:
+                s._push(readings)  # noqa: SLF001 - under the lock: bursts stay in time order
+
+    def _read_burst(self, timeout: float) -> list:
+        if not self._on_site():
+            return [self._read(timeout)]
+        self._catch_up()
+        return []
+
+    def read_available(self, timeout: float = 0.0) -> list:
+        if self._on_site() and self.streaming:
+            try:
+                self._catch_up()
+            except DeviceError:
+                pass  # a silent device: the reader thread hits it too and fails the stream (reported there)
+        return super().read_available(timeout)
+
+
+class SimImu(_SimClockStream, Imu):
     """A 9-axis IMU on a frame of the simulated world with its real model's errors (:mod:`.inertial`):
     white noise, bias random walk and turn-on bias of gyro and accelerometer, saturation, and a
     magnetometer with hard/soft iron and disturbance near steel.
@@ -506,6 +552,7 @@ class SimImu(Imu):
         self.connected = True
         self.sim = None
         self.stream_rate_hz = 100.0
+        self._clock_lock = threading.Lock()
 
     def on_configure(self) -> None:
         from weldcell.hal.sim.inertial import ImuSimulator
@@ -559,13 +606,11 @@ class SimImu(Imu):
             self.world.clock.advance(t - self.world.clock.t)
         return self._readings(t)[0]
 
-    def _read_burst(self, timeout: float) -> list:
-        if getattr(self.world, "site", None) is None:
-            return [self._read(timeout)]
+    def _site_burst(self) -> list:
         return self._readings(self.world.clock.t)
 
 
-class SimGnss(Gnss):
+class SimGnss(_SimClockStream, Gnss):
     """A GNSS receiver (:mod:`.gnss_model`: u-blox M8T standalone or RTK) on a frame of the world;
     the world origin is at ``origin`` (lat, lon, alt), the world frame is the local ENU frame.
 
@@ -596,6 +641,7 @@ class SimGnss(Gnss):
         self.T_parent_antenna = np.eye(4) if T_parent_antenna is None else np.asarray(T_parent_antenna, float)
         self.sim = None
         self.stream_rate_hz = 20.0
+        self._clock_lock = threading.Lock()
 
     def on_configure(self) -> None:
         from weldcell.hal.sim.gnss_model import GnssSimulator
@@ -650,9 +696,7 @@ class SimGnss(Gnss):
             self.world.clock.advance(t - self.world.clock.t)
         return self._fix(self.sim.samples_until(t)[0])
 
-    def _read_burst(self, timeout: float) -> list:
-        if getattr(self.world, "site", None) is None:
-            return [self._read(timeout)]
+    def _site_burst(self) -> list:
         return [self._fix(s) for s in self.sim.samples_until(self.world.clock.t)]
 
 

@@ -24,6 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 from weldcell.hal.sim.site import GRAVITY
 
+_NOISE_BLOCK = 256
+"""Samples of noise drawn at a time (see :meth:`ImuSimulator._noise`)."""
+
 
 @dataclass
 class ImuModel:
@@ -69,22 +72,44 @@ class ImuSimulator:
         self.soft = np.eye(3) + self.rng.normal(0.0, m.soft_iron, (3, 3))
         self.soft = (self.soft + self.soft.T) / 2
         self.steel_distance = steel_distance
-        self.t_next = 0.0
+        self.k_next = 0
+        """Index of the next sample (time ``k * dt``: exact, however the samples are requested)."""
         self.bias_log: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._noise_buf = np.zeros((0, 15))
+
+    def _noise(self, n: int) -> np.ndarray:
+        """The next ``n`` rows of standard normal draws (gyro and accel random walk, gyro, accel and
+        magnetometer white noise: 5 x 3 columns). Drawn in fixed blocks, so sample k gets the same noise
+        however the samples are requested (one call for 1 s or 200 calls of 5 ms: a stream's reader
+        thread polls at whatever moments the machine's load allows)."""
+        while len(self._noise_buf) < n:
+            self._noise_buf = np.vstack([self._noise_buf, self.rng.standard_normal((_NOISE_BLOCK, 15))])
+        out, self._noise_buf = self._noise_buf[:n], self._noise_buf[n:]
+        return out
 
     @property
     def dt(self) -> float:
         return 1.0 / self.model.rate
 
+    @property
+    def t_next(self) -> float:
+        """Time of the next sample [s]."""
+        return self.k_next * self.dt
+
+    @t_next.setter
+    def t_next(self, t: float) -> None:
+        self.k_next = int(np.ceil(t / self.dt - 1e-9))
+
     def samples_until(self, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         """All samples with time in [t_next, t_end]: times (N,), accel (N,3), gyro (N,3), mag (N,3)
         and truth {"R", "b_g", "b_a", "saturated"}."""
-        n = int(np.floor((t_end - self.t_next) / self.dt + 1e-9)) + 1
+        k_end = int(np.floor(t_end / self.dt + 1e-9))
+        n = k_end - self.k_next + 1
         if n <= 0:
             z = np.zeros((0, 3))
             return np.zeros(0), z, z, z, {"b_g": z, "b_a": z, "saturated": np.zeros(0, bool)}
-        t = self.t_next + self.dt * np.arange(n)
-        self.t_next = float(t[-1] + self.dt)
+        t = np.arange(self.k_next, k_end + 1) * self.dt
+        self.k_next = k_end + 1
         R_wb, _, a_w, w_b, p_w = self.kinematics(t)
         R_bi, r = self.T_body_imu[:3, :3], self.T_body_imu[:3, 3]
         # angular acceleration of the body by finite difference of w (smooth: splines)
@@ -96,11 +121,13 @@ class ImuSimulator:
         f_true = np.einsum("nji,nj->ni", R_wi, a_imu_w + np.array([0.0, 0.0, GRAVITY]))
         w_true = w_b @ R_bi  # R_bi^T w_b
         m, dt = self.model, self.dt
-        bg = self.b_g + np.cumsum(self.rng.normal(0, m.gyro_random_walk * np.sqrt(dt), (n, 3)), axis=0)
-        ba = self.b_a + np.cumsum(self.rng.normal(0, m.accel_random_walk * np.sqrt(dt), (n, 3)), axis=0)
+        z = self._noise(n)
+        # the random walks summed sample after sample from the last bias (bit-identical for any chunking)
+        bg = np.cumsum(np.vstack([self.b_g, z[:, 0:3] * (m.gyro_random_walk * np.sqrt(dt))]), axis=0)[1:]
+        ba = np.cumsum(np.vstack([self.b_a, z[:, 3:6] * (m.accel_random_walk * np.sqrt(dt))]), axis=0)[1:]
         self.b_g, self.b_a = bg[-1].copy(), ba[-1].copy()
-        gyro = w_true + bg + self.rng.normal(0, m.gyro_noise_density / np.sqrt(dt), (n, 3))
-        accel = f_true + ba + self.rng.normal(0, m.accel_noise_density / np.sqrt(dt), (n, 3))
+        gyro = w_true + bg + z[:, 6:9] * (m.gyro_noise_density / np.sqrt(dt))
+        accel = f_true + ba + z[:, 9:12] * (m.accel_noise_density / np.sqrt(dt))
         sat = (np.abs(gyro) > m.gyro_range).any(1) | (np.abs(accel) > m.accel_range).any(1)
         gyro = np.clip(gyro, -m.gyro_range, m.gyro_range)
         accel = np.clip(accel, -m.accel_range, m.accel_range)
@@ -111,5 +138,5 @@ class ImuSimulator:
             # anomaly along a fixed direction (induced magnetisation of vertical steel: mostly z)
             field_w += (m.steel_strength / d**3)[:, None] * np.array([0.3, -0.2, 1.0])
         mag = np.einsum("ij,nj->ni", self.soft, np.einsum("nji,nj->ni", R_wi, field_w)) + self.hard
-        mag += self.rng.normal(0, m.mag_noise, (n, 3))
+        mag += z[:, 12:15] * m.mag_noise
         return t, accel, gyro, mag, {"R": R_wi, "b_g": bg, "b_a": ba, "saturated": sat}

@@ -119,3 +119,19 @@ def test_gnss_rtk_is_centimetre_level(site):
     sim = GnssSimulator(GnssModel(mode="rtk"), lambda t: np.array([1.0, 2.0, 0.0]), seed=3)
     err = np.array([f["enu"] - f["truth"] for f in sim.samples_until(60.0)])
     assert np.sqrt(np.mean(err[:, :2] ** 2)) < 0.03
+
+
+def test_zed_video_modes_have_their_own_intrinsics_and_depth_noise():
+    """A real ZED 2i mode (VGA 672x376) is not HD720 decimated: half HD720's focal length (the factory
+    calibration files' ratio) and depth computed at that resolution, so twice the stereo noise."""
+    from weldcell.hal.sim.camera_model import get_preset, zed_mode
+
+    hd, vga = get_preset("zed2i"), zed_mode("VGA")
+    assert (vga.width, vga.height) == (672, 376) and zed_mode("HD720").width == 1280
+    assert vga.fx == pytest.approx(hd.fx / 2) and vga.cx == pytest.approx(335.5)
+    assert vga.sigma(3.0) == pytest.approx(2 * hd.sigma(3.0))
+    assert zed_mode("HD2K").width == 2208 and zed_mode("2K").fx == pytest.approx(2 * hd.fx)
+    with pytest.raises(DataError, match="ZED resolution"):
+        zed_mode("640x360")
+    with pytest.raises(DataError, match="not a ZED"):
+        zed_mode("VGA", "realsense-d435")

@@ -1,0 +1,156 @@
+"""What limits the weld plates' AE (issue 11): re-measure each plate of a finished ``map`` run from its
+key-frame store, with the estimated and with the true key-frame poses, and show per plate the views
+(how many, how far, how steep), the error of each of the plate's four edges and the AE.
+
+    .venv/bin/python benchmarks/mapping_ate.py --resolution VGA --decimation 1 --keep /tmp/ate   # a run
+    .venv/bin/python benchmarks/mapping_plates.py /tmp/ate/runs/<run> --seed 0 --depth-noise 2.98e-3
+
+The run's map folder holds every key frame's depth image and pose; ``regions.json`` which key frames
+saw each region; ``truth_keyframes.tum`` the true camera poses; the site (its plates' true corners)
+is rebuilt from the seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def _tum(path: Path) -> dict[float, np.ndarray]:
+    from scipy.spatial.transform import Rotation
+
+    out = {}
+    for line in path.read_text().splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        v = [float(x) for x in line.split()]
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(v[4:8]).as_matrix()
+        T[:3, 3] = v[1:4]
+        out[round(v[0], 6)] = T
+    return out
+
+
+def plate_views(T_cams: list[np.ndarray], plate) -> dict:
+    """Distance, elevation above the plate's top (deg) and the side of the plate each view looks from."""
+    c = plate.center
+    R = plate.corners
+    ax = (R[1] - R[0])[:2] / np.linalg.norm((R[1] - R[0])[:2])
+    ay = np.array([-ax[1], ax[0]])
+    d, el, sides = [], [], []
+    for T in T_cams:
+        v = T[:3, 3] - c
+        d.append(np.linalg.norm(v[:2]))
+        el.append(np.degrees(np.arctan2(v[2], np.linalg.norm(v[:2]))))
+        sides.append((float(v[:2] @ ax), float(v[:2] @ ay)))
+    return {
+        "n": len(T_cams),
+        "dist": np.array(d),
+        "elev": np.array(el),
+        "sides": np.array(sides),
+        "axes": (ax, ay),
+    }
+
+
+def edge_errors(corners: np.ndarray, plate, axes) -> np.ndarray:
+    """Signed error (m) of the measured plate's four edges along the true plate axes (+x, -x, +y, -y):
+    positive = the measured edge lies outside the true one."""
+    ax, ay = axes
+    c = plate.center[:2]
+    out = []
+    for a in (ax, ay):
+        t = (plate.corners[:, :2] - c) @ a
+        m = (corners[:, :2] - c) @ a
+        out += [m.max() - t.max(), t.min() - m.min()]
+    return np.array(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", type=Path)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--depth-noise", type=float, default=1.488e-3, help="the estimator's sigma_z / z² [1/m]")
+    ap.add_argument("--rectangle", action="store_true", help="the points' rectangle (regions.plate_corners)")
+    ap.add_argument("--max-distance", type=float, help="only key frames this close to the plate [m]")
+    args = ap.parse_args()
+    from weldcell.hal.sim.site import install_site
+    from weldcell.hal.sim.world import SimWorld
+    from weldcell.plugins.mapping.interp import ate_rmse
+    from weldcell.plugins.mapping.mapstore import KeyFrameStore
+    from weldcell.plugins.mapping.plate import frame_observations, merge, plate_corners_ml
+    from weldcell.plugins.mapping.regions import corner_distance_error, plate_corners
+
+    site = install_site(SimWorld([]), seed=args.seed)
+    store = KeyFrameStore.load(args.run / "map")
+    truth = _tum(args.run / "truth_keyframes.tum")
+    recs = {r.index: r for r in store.records if round(r.t, 6) in truth}
+    est = np.array([recs[i].T_world_cam[:3, 3] for i in sorted(recs)])
+    ref = np.array([truth[round(recs[i].t, 6)][:3, 3] for i in sorted(recs)])
+    ate, A = ate_rmse(est, ref)
+    print(f"{len(recs)} key frames, ATE {ate:.4f} m")
+    regions = json.loads((args.run / "regions.json").read_text())["regions"]
+    K = store.intrinsics
+    rows = []
+    for plate in site.layout.plates:
+        best = None
+        for r in regions:
+            if r["decision"] == "rejected":
+                continue
+            c = A[:3, :3] @ np.asarray(r["center"]) + A[:3, 3]
+            e = np.linalg.norm(c - plate.center)
+            if e < 0.8 and (best is None or e < best[1]):
+                best = (r, e)
+        if best is None:
+            print(f"{plate.name}: not found")
+            continue
+        r = best[0]
+        views = [i for i in dict.fromkeys(r["observations"]) if i in recs]
+        if args.max_distance:
+            views = [
+                i
+                for i in views
+                if np.linalg.norm(truth[round(recs[i].t, 6)][:2, 3] - plate.center[:2]) <= args.max_distance
+            ]
+        out = {}
+        for which in ("estimated", "true"):
+            obs = []
+            for i in views:
+                Tt = truth[round(recs[i].t, 6)]
+                if which == "estimated":  # in the truth's frame (AE is invariant to it; edges are not)
+                    T = A @ recs[i].T_world_cam
+                else:
+                    T = Tt
+                lo, hi = plate.center - [0.55, 0.55, 0.25], plate.center + [0.55, 0.55, 0.25]
+                obs.append(frame_observations(store.read(recs[i])["depth"], K, T, lo, hi, args.depth_noise))
+            merged = merge(obs)
+            corners = plate_corners(merged.points) if args.rectangle else plate_corners_ml(merged)
+            if corners is None:
+                out[which] = None
+                continue
+            out[which] = (corner_distance_error(corners, plate.corners), corners)
+        Tv = [truth[round(recs[i].t, 6)] for i in views]
+        pv = plate_views(Tv, plate)
+        rows.append((plate.name, pv, out))
+        ae_e = out["estimated"][0] * 1000 if out["estimated"] else np.nan
+        ae_t = out["true"][0] * 1000 if out["true"] else np.nan
+        nan4 = np.full(4, np.nan)
+        ee = edge_errors(out["estimated"][1], plate, pv["axes"]) * 1000 if out["estimated"] else nan4
+        et = edge_errors(out["true"][1], plate, pv["axes"]) * 1000 if out["true"] else nan4
+        s = pv["sides"]
+        print(
+            f"{plate.name}: {pv['n']} views, {pv['dist'].min():.1f}-{pv['dist'].max():.1f} m, elevation "
+            f"{pv['elev'].min():.1f}-{pv['elev'].max():.1f} deg, views from +x {np.sum(s[:, 0] > 0.3)} "
+            f"-x {np.sum(s[:, 0] < -0.3)} +y {np.sum(s[:, 1] > 0.2)} -y {np.sum(s[:, 1] < -0.2)}; AE "
+            f"{ae_e:.1f} mm (true poses {ae_t:.1f}); edges +x {ee[0]:+.0f} -x {ee[1]:+.0f} +y {ee[2]:+.0f} "
+            f"-y {ee[3]:+.0f} mm (true poses {et[0]:+.0f} {et[1]:+.0f} {et[2]:+.0f} {et[3]:+.0f})",
+            flush=True,
+        )
+    ae = [o["estimated"][0] for _, _, o in rows if o.get("estimated")]
+    print(f"mean AE {1000 * np.mean(ae):.1f} mm over {len(ae)} plates")
+
+
+if __name__ == "__main__":
+    main()
