@@ -35,44 +35,6 @@ PAPER = {
 }
 
 
-class ZedModePlugin:
-    """``camera.sim-zed``: ``camera.sim`` with a ``resolution`` setting (a real ZED 2i video mode, e.g. VGA
-    672x376, :func:`weldcell.hal.sim.camera_model.zed_mode`), for this benchmark until ``camera.sim``
-    itself has the setting."""
-
-    from weldcell.sdk.hookspecs import hookimpl
-
-    @hookimpl
-    def weldcell_register_devices(self, register) -> None:
-        from typing import Literal
-
-        from weldcell.hal.sim.camera_model import zed_mode
-        from weldcell.plugins.sim import factories as f
-        from weldcell.plugins.sim import settings as s
-        from weldcell.sdk.descriptors import DeviceSpec
-
-        class ZedSimSettings(s.SimCameraSettings):
-            resolution: Literal["2K", "FHD", "HD", "VGA"] | None = None
-
-        def factory(settings, ctx):
-            cam = f.camera(settings, ctx)
-            if settings.resolution:
-                cam.preset = zed_mode(settings.resolution, cam.preset)
-            return cam
-
-        register(
-            DeviceSpec(
-                name="camera.sim-zed",
-                kind="depth_camera",
-                summary="camera.sim at a ZED 2i video mode",
-                settings=ZedSimSettings,
-                factory=factory,
-                simulated=True,
-                probe=f.probe,
-            )
-        )
-
-
 def run_config(name: str, args, estimator: dict, gnss_mode: str | None, tmp: Path) -> dict:
     from weldcell.hal.sim.camera_model import get_preset, zed_mode
     from weldcell.sdk.jobs import run_job
@@ -89,7 +51,7 @@ def run_config(name: str, args, estimator: dict, gnss_mode: str | None, tmp: Pat
         # the estimator's stereo noise is the camera's (sigma_z / z², doubles at VGA), not assumed
         f"frontend = {{ depth_noise = {preset.sigma2:.6g} }}",
         "[devices.camera]",
-        'plugin = "camera.sim-zed"' if args.resolution else 'plugin = "camera.sim"',
+        'plugin = "camera.sim"',
         "[devices.camera.settings]",
         f"decimation = {args.decimation}",
         f"fps = {args.fps}",
@@ -101,8 +63,6 @@ def run_config(name: str, args, estimator: dict, gnss_mode: str | None, tmp: Pat
     p = tmp / f"{name}.toml"
     p.write_text("\n".join(text) + "\n")
     pm = PluginManager(discover=True)
-    if args.resolution:
-        pm.register(ZedModePlugin(), "zed-mode-benchmark")
     t0 = time.perf_counter()
     run, result = run_job(p, pm, runs_dir=tmp / "runs")
     f = result["figures"]

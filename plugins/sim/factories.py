@@ -64,6 +64,7 @@ def camera(settings, ctx) -> d.SimDepthCamera:
         seed=ctx.seed + 1,
         frame_time=1.0 / settings.fps,
         color=settings.color,
+        resolution=settings.resolution,
     )
     if settings.stop_after is not None:
         _stop_after(cam, settings.stop_after)

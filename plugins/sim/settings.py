@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from weldcell.hal.robot import RobotMotionSettings
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Angle, Duration, Frequency, Length
@@ -57,6 +57,20 @@ class SimCameraSettings(Settings):
         False, description="also render a registered colour image (textured surfaces; RGB-D cameras)"
     )
     fps: Frequency = Field(30.0, gt=0, le=100, description="frame rate: simulated time per frame [Hz]")
+    resolution: Literal["2K", "FHD", "HD", "VGA"] | None = Field(
+        None,
+        description="a ZED's video mode (preset zed2i only): its image size, focal length and the stereo "
+        "noise of depth computed at that mode (docs/simulated-cell.md); none: the preset's native mode",
+    )
+
+    @model_validator(mode="after")
+    def _resolution_needs_a_zed(self) -> SimCameraSettings:
+        if self.resolution is not None and not self.preset.startswith("zed"):
+            raise ValueError(
+                f"resolution {self.resolution!r} is a ZED video mode but preset is {self.preset!r}: "
+                "use preset = 'zed2i' or remove resolution"
+            )
+        return self
 
 
 class SimGestureSettings(Settings):
