@@ -135,3 +135,16 @@ def test_zed_video_modes_have_their_own_intrinsics_and_depth_noise():
         zed_mode("640x360")
     with pytest.raises(DataError, match="not a ZED"):
         zed_mode("VGA", "realsense-d435")
+
+
+def test_profile_selects_a_zed_mode_for_the_simulated_camera():
+    """`resolution = "VGA"` in a profile gives the camera the ZED's VGA mode; on a camera that is not a ZED
+    the profile is refused with what to change."""
+    from pydantic import ValidationError
+    from weldcell.plugins.sim.settings import SimCameraSettings
+
+    assert SimCameraSettings(preset="zed2i", resolution="VGA").resolution == "VGA"
+    with pytest.raises(ValidationError, match="use preset = 'zed2i' or remove resolution"):
+        SimCameraSettings(preset="realsense-d415", resolution="VGA")
+    with pytest.raises(ValidationError):
+        SimCameraSettings(preset="zed2i", resolution="640x360")
