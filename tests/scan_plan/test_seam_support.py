@@ -141,3 +141,38 @@ def test_a_lone_sparse_groove_plate_is_not_taken_for_a_table(seed, tmp_path):
     pts = np.array(seams[0]["points"])
     assert np.all(np.abs(pts[:, 0] - SEAM_X) < 0.003) and np.all(pts[:, 2] < 0.006)  # root, not rim
     assert np.ptp(pts[:, 1]) > 0.25
+
+
+def _tent_on_table(seed=0, h=0.03, half=0.03, length=0.08):
+    """A table (z = 0, the part's footprint hidden) with a roof on it: two plates meeting in a convex
+    ridge along x at height ``h`` (a thin outside corner whose notch is below the stage's scale), its
+    gable ends standing on the table; in a base frame turned at random. Returns points and the rotation."""
+    rng = np.random.default_rng(seed)
+    u, v = _grid(-0.12, 0.12, -0.12, 0.12)
+    table = np.column_stack([u, v, np.zeros_like(u)])
+    parts = [table[~((np.abs(u) < length / 2) & (np.abs(v) < half))]]
+    s = np.hypot(h, half)
+    for sg in (-1, 1):
+        a, t = _grid(-length / 2, length / 2, 0.0, s)
+        parts.append(np.column_stack([a, sg * half * t / s, h - h * t / s]))
+    for x in (-length / 2, length / 2):
+        y, z = _grid(-half, half, 0.0, h)
+        keep = z <= h * (1 - np.abs(y) / half)
+        parts.append(np.column_stack([np.full(keep.sum(), x), y[keep], z[keep]]))
+    P = np.vstack(parts)
+    P = P + rng.normal(0, 1e-4, P.shape)
+    R = Rotation.random(random_state=rng).as_matrix()
+    return P @ R.T + rng.uniform(-0.5, 0.5, 3), R
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_convex_ridge_on_a_table_is_no_seam(seed):
+    """A part on a table whose only creases are its contact lines (dropped) and a convex ridge: no seam.
+    The no-seam re-reading without the plane (for lone plates passing for a table) must not run when the
+    plane surely holds the part: it flipped every normal and reported the ridge as a concave seam with
+    the torch coming from under the table (the thin corners of the evaluation set)."""
+    P, R = _tent_on_table(seed)
+    ex = extract_seams(P)
+    assert ex.seams == []
+    assert ex.params["support"] is not None  # the table, as found by the first reading
+    assert np.asarray(ex.params["support"]) @ R[:, 2] > 0.99  # faces the part: the orientation stood

@@ -22,6 +22,7 @@ from .refinement import (
     _orient,
     _refine_nodes,
     _resample,
+    _root_opening,
     _trim_turning_ends,
 )
 from .settings import ChainSettings, SeamSettings
@@ -166,6 +167,8 @@ def _polyline(
         use = ok & ok_w & (np.linalg.norm(Xw - Xs, axis=1) < cfg.side_radius / 6.0)
         Xs = np.where(use[:, None], Xw, Xs)
         As = np.where(use[:, None], Aw, As)
+    elif cfg.refine and len(Xs) >= 3 and _joint_class(piece, ok, crease, cfg) == "groove":
+        Xs = _root_opening(P, N, tree, Xs, cfg.side_radius)  # at the root opening, where the walls end
     # smoothing window: smooth_length, but at most 1/8 of the seam (a quadratic fit over more of a
     # small ring would shrink it)
     window = max(int(cfg.smooth_window), int(round(cfg.smooth_length / spacing)) | 1)
@@ -192,13 +195,18 @@ def _polyline(
         return None
     Ar = _orthogonal_to_travel(Xr, Ar, closed)
     Xr, Ar = _orient(Xr, Ar, closed)
-    if cfg.refine and ok.sum() >= 3:  # the included angle of the fitted side planes decides
-        joint = "groove" if np.pi - np.median(crease[ok]) < cfg.groove_max_angle else "concave"
-    else:
-        joint = "groove" if piece.labels[GROOVE] > piece.labels[CONCAVE] else "concave"
+    joint = _joint_class(piece, ok, crease, cfg)
     if joint not in cfg.joints:
         return None
     return SeamPolyline(seam_id, joint, Xr, Ar, bool(closed), length)
+
+
+def _joint_class(piece: _Piece, ok: np.ndarray, crease: np.ndarray, cfg: ChainSettings) -> str:
+    """The joint class, "groove" or "concave": the included angle of the fitted side planes decides
+    (``cfg.refine``), else the piece's majority label."""
+    if cfg.refine and ok.sum() >= 3:
+        return "groove" if np.pi - np.median(crease[ok]) < cfg.groove_max_angle else "concave"
+    return "groove" if piece.labels[GROOVE] > piece.labels[CONCAVE] else "concave"
 
 
 def _cut_overshoot(
@@ -300,10 +308,12 @@ def extract_seams(
         edge = (score >= s.t) & (I >= s.min_intensity)
     N, plane = _normals(P, tree, normals, s, table, fine, coarse)
     labels, seams, support = _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints)
-    if not seams and plane is not None and normals is None and s.up is None:
+    if not seams and plane is not None and plane.ambiguous and normals is None and s.up is None:
         # The plane hypothesis left no seam: a lone plate's face can pass for a table (its groove then
         # looks like a part behind it, and every normal flips). Without the hypothesis the cloud is read
-        # as before support planes existed; a real table that hides every seam loses nothing by this.
+        # as before support planes existed. Not when the plane surely holds the part (a table or fixture
+        # reaching beyond it): its orientation stands, and the re-reading, whose normals all flip, would
+        # report the part's convex ridges (a thin corner's roof) as concave seams facing the table.
         N, plane = _normals(P, tree, normals, s, table, fine, coarse, find_support=False)
         labels, seams, support = _seams_on(P, N, tree, edge, None, s, r, r_fine, viewpoints)
     params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)

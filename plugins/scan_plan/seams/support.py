@@ -36,6 +36,11 @@ SURROUND = 0.5
 #: in part); lone plates, one-sided the wrong way or a base plate with nothing under it: the T-joint of
 #: profiles/cell1-fillet-sim.toml 0.08, the CLI tests' V-groove 0.12, the demo's V-groove 0.20
 ENCLOSE = 0.3
+#: a support that encloses at least this share of the part's outline corners is a table or fixture beyond
+#: doubt: every lone plate measured passing for a support enclosed less (0.12-0.46: one-sided the wrong way,
+#: its groove walls taken for "the part"), tables and fixtures 0.28-1.0. Only below it may the stage re-read
+#: a seamless cloud without the plane (``SupportPlane.ambiguous``, ``pipeline.extract_seams``)
+UNAMBIGUOUS_ENCLOSE = 0.5
 #: a seam node is at a contact when at least this share of the points around it lie on the support plane
 #: (a contact crease: about half; a V-groove root on the table, seen through its root gap: a few %)
 CONTACT_SHARE = 0.3
@@ -62,6 +67,12 @@ class SupportPlane:
         outline within its points): a table or fixture, whose contact lines are not seams -- not a
         T-joint's base plate, which its web reaches the ends of."""
         return self.encloses >= ENCLOSE
+
+    @property
+    def ambiguous(self) -> bool:
+        """Whether the plane could be a lone plate's face read from the wrong side (it encloses less than
+        :data:`UNAMBIGUOUS_ENCLOSE` of the part's outline): the orientation it gives is then a guess."""
+        return self.encloses < UNAMBIGUOUS_ENCLOSE
 
     def distance(self, X: np.ndarray) -> np.ndarray:
         """Signed distances (m) of points ``X`` (n, 3) from the plane (positive in front)."""
