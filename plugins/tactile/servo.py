@@ -47,6 +47,17 @@ from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import AngularSpeed, Duration, Length, Speed
 
 from .paths import Polyline, left_normal
+from .refined_path import RefinedPath, seam_from_tip_path  # noqa: F401  (seam_from_tip_path re-exported)
+from .servo_equations import (  # noqa: F401  (the equations re-exported: this module's old public names)
+    OmegaSolution,
+    quintic_ramp_down,
+    refine_point,
+    servo_velocity,
+    split_deformation,
+    tool_directions,
+    torch_angular_velocity,
+    torch_position,
+)
 
 Gate = Callable[[np.ndarray, np.ndarray], None]
 
@@ -88,165 +99,6 @@ class ServoSettings(Settings):
     window: Length = Field(0.02, gt=0, description="search window (±) for the nearest planned/refined point")
     refine_step: Length = Field(0.0003, gt=0, description="minimum spacing of recorded refined points")
     tangent_window: Length = Field(0.003, gt=0, description="half window of the refined-path tangent fit")
-
-
-# ---------------------------------------------------------------------------------------------- #
-# The paper's functions, one by one
-# ---------------------------------------------------------------------------------------------- #
-
-
-def tool_directions(alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """``t_d = [cos α, sin α]``, ``n_d = [-sin α, cos α]`` (§2.2.2)."""
-    c, s = math.cos(alpha), math.sin(alpha)
-    return np.array([c, s]), np.array([-s, c])
-
-
-def torch_position(P_r: np.ndarray, t_d: np.ndarray, torch_offset: float) -> np.ndarray:
-    """Eq. 14 / Alg. 2 line 9: ``P_t = P_r - ‖d‖ t_d``."""
-    return np.asarray(P_r, dtype=float)[:2] - torch_offset * np.asarray(t_d, dtype=float)
-
-
-def refine_point(P_r: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """REFINE (Alg. 2 line 17, eq. 15): ``P_s = P_r - δ``, δ = δ^{n_s} n_s + δ^{t_s} t_s (plane vector)."""
-    return np.asarray(P_r, dtype=float)[:2] - np.asarray(delta, dtype=float)[:2]
-
-
-def split_deformation(delta: np.ndarray, t_s: np.ndarray, n_s: np.ndarray) -> tuple[float, float]:
-    """δ^{n_s}, δ^{t_s}: projections of the plane deformation on the seam normal and tangent (eq. 15)."""
-    d = np.asarray(delta, dtype=float)[:2]
-    return float(d @ n_s), float(d @ t_s)
-
-
-def servo_velocity(
-    t_v: np.ndarray,
-    n_v: np.ndarray,
-    delta_n: float,
-    delta_d: float,
-    speed: float,
-    k_p: float,
-    max_normal_speed: float = math.inf,
-) -> np.ndarray:
-    """SERVO (eq. 16, Alg. 2 line 24): ``V_r = V_const t_v - k_p (δ^{n_s} - δ_d) n_v`` (normal clamped)."""
-    vn = float(np.clip(-k_p * (delta_n - delta_d), -max_normal_speed, max_normal_speed))
-    return speed * np.asarray(t_v, dtype=float) + vn * np.asarray(n_v, dtype=float)
-
-
-@dataclass(frozen=True)
-class OmegaSolution:
-    """ω from eqs. 17-18 and how close to the n_d ⟂ n_t singularity it was computed."""
-
-    omega: float
-    cos_nd_nt: float  # n_d · n_t
-    weight: float  # 1 = regular, 0 = at the singularity
-    exact: float  # the undamped value (may be ±inf at the singularity)
-
-
-# parameters: the terms of eqs. 14-18 (velocities, frames, torch offset, gains); called from one place
-def torch_angular_velocity(
-    V_r: np.ndarray,
-    t_d: np.ndarray,
-    n_d: np.ndarray,
-    n_t: np.ndarray,
-    torch_offset: float,
-    lateral_error: float = 0.0,
-    torch_gain: float = 0.0,
-    singular_cos: float = 0.35,
-    damping: float = 0.3,
-    heading_error: float = 0.0,
-    align_gain: float = 0.0,
-    omega_max: float = math.inf,
-) -> OmegaSolution:
-    """ω of the end effector so the torch moves along the refined path (eqs. 17-18, Alg. 2 line 13).
-
-    Regular case: ``V_t·n_t = -k_t e_t`` with ``V_t = V_r - ω‖d‖n_d`` gives
-    ``ω = (V_r·n_t + k_t e_t) / (‖d‖ n_d·n_t)`` (k_t = 0: the paper's eq. 18).
-    Near ``n_d ⟂ n_t`` (|n_d·n_t| < singular_cos) the division is damped — ``ω = a b / (a² + λ²)`` with
-    ``a = ‖d‖ n_d·n_t``, ``λ² = (damping ‖d‖)² (1 - (c/singular_cos)²)`` — and blended with a heading
-    re-alignment ``align_gain · heading_error`` (the angle from t_d to the path tangent t_t, turning
-    which raises |n_d·n_t|) by the weight ``|c|/singular_cos``. The result is finite for every input
-    and saturated at ``omega_max``.
-    """
-    n_t = np.asarray(n_t, dtype=float)
-    c = float(np.asarray(n_d, dtype=float) @ n_t)
-    a = torch_offset * c
-    b = float(np.asarray(V_r, dtype=float)[:2] @ n_t) + torch_gain * lateral_error
-    exact = b / a if a != 0.0 else (math.copysign(math.inf, b) if b != 0 else 0.0)
-    if abs(c) >= singular_cos:
-        w, omega = 1.0, exact
-    else:
-        lam2 = (damping * torch_offset) ** 2 * (1.0 - (c / singular_cos) ** 2)
-        w = abs(c) / singular_cos
-        omega = w * (a * b / (a * a + lam2)) + (1.0 - w) * align_gain * heading_error
-    omega = float(np.clip(omega, -omega_max, omega_max))
-    return OmegaSolution(omega, c, w, exact)
-
-
-def quintic_ramp_down(tau: float) -> float:
-    """1 → 0 over tau ∈ [0, 1] with zero 1st and 2nd derivatives at both ends (bounded jerk)."""
-    x = min(max(tau, 0.0), 1.0)
-    return 1.0 - x**3 * (10.0 - 15.0 * x + 6.0 * x * x)
-
-
-# ---------------------------------------------------------------------------------------------- #
-# The refined path (REFINE's output)
-# ---------------------------------------------------------------------------------------------- #
-
-
-class RefinedPath:
-    """Growing list of recorded tip positions ``P_s`` (base frame, 3-D) with their times."""
-
-    def __init__(self, min_step: float) -> None:
-        self.min_step = min_step
-        self._pts: list[np.ndarray] = []
-        self._t: list[float] = []
-        self._line: Polyline | None = None
-
-    def append(self, p: np.ndarray, t: float) -> bool:
-        p = np.asarray(p, dtype=float)
-        if self._pts and np.linalg.norm(p[:2] - self._pts[-1][:2]) < self.min_step:
-            return False
-        self._pts.append(p.copy())
-        self._t.append(float(t))
-        self._line = None
-        return True
-
-    @property
-    def points(self) -> np.ndarray:
-        return np.array(self._pts).reshape(-1, 3)
-
-    @property
-    def times(self) -> np.ndarray:
-        return np.array(self._t)
-
-    def __len__(self) -> int:
-        return len(self._pts)
-
-    def polyline(self) -> Polyline | None:
-        if self._line is None and len(self._pts) >= 2:
-            self._line = Polyline(self.points, "refined path")
-        return self._line
-
-    @property
-    def length(self) -> float:
-        line = self.polyline()
-        return 0.0 if line is None else line.length
-
-
-def seam_from_tip_path(
-    tip_points: np.ndarray, tip_radius: float, wall_side: str, half_window: float = 0.003
-) -> np.ndarray:
-    """Seam (wall-contact) points: tip centres moved by the tip radius into the wall along the path normal."""
-    P = np.asarray(tip_points, dtype=float)
-    if len(P) < 2 or tip_radius == 0:
-        return P.copy()
-    line = Polyline(P, "refined path")
-    sign = 1.0 if wall_side == "left" else -1.0
-    out = P.copy()
-    s_vertices = line.s
-    for i, s in enumerate(s_vertices):
-        n = sign * left_normal(line.smooth_tangent(float(s), half_window))
-        out[i, :2] += tip_radius * n
-    return out
 
 
 # ---------------------------------------------------------------------------------------------- #
