@@ -24,15 +24,14 @@ and the IMU alone propagates (a key frame without visual factor) until PnP succe
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 from weldcell.hal.readings import Intrinsics
-from weldcell.plugins.mapping.frontend import FrameFeatures, OrbFrontEnd, PnPResult, fill_missing_depth
+from weldcell.plugins.mapping.frontend import OrbFrontEnd, PnPResult, fill_missing_depth
 from weldcell.plugins.mapping.globalopt import GlobalGraph, close_loops
 from weldcell.plugins.mapping.interp import umeyama
+from weldcell.plugins.mapping.keyframe import FrameResult, KeyFrame
 from weldcell.sdk.errors import DataError
 
 GRAVITY = 9.80665
@@ -42,35 +41,6 @@ def _time_now() -> float:
     import time
 
     return time.perf_counter()
-
-
-@dataclass
-class KeyFrame:
-    """A key frame: time (s, sensor clock), images, features and the estimated IMU state."""
-
-    index: int
-    t: float
-    stamp: float
-    rgb: np.ndarray
-    depth: np.ndarray
-    intrinsics: Intrinsics
-    features: FrameFeatures
-    T_world_imu: np.ndarray
-    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    visual: bool = True
-    """False when the key frame was placed by the IMU alone (tracking lost)."""
-    truth: np.ndarray | None = None
-
-
-@dataclass
-class FrameResult:
-    t: float
-    T_world_cam: np.ndarray | None
-    """None while initialising."""
-    keyframe: KeyFrame | None
-    tracked: bool
-    events: list[str]
 
 
 def _pose3(T: np.ndarray) -> gtsam.Pose3:

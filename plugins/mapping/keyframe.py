@@ -1,0 +1,42 @@
+"""What the mapping estimator (:mod:`weldcell.plugins.mapping.estimator`) hands on: its key frames (images,
+features and the estimated IMU state) and the result of each camera frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from weldcell.hal.readings import Intrinsics
+from weldcell.plugins.mapping.frontend import FrameFeatures
+
+
+@dataclass
+class KeyFrame:
+    """A key frame: time (s, sensor clock), images, features and the estimated IMU state."""
+
+    index: int
+    t: float
+    stamp: float
+    rgb: np.ndarray
+    depth: np.ndarray
+    intrinsics: Intrinsics
+    features: FrameFeatures
+    T_world_imu: np.ndarray
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    visual: bool = True
+    """False when the key frame was placed by the IMU alone (tracking lost)."""
+    truth: np.ndarray | None = None
+
+
+@dataclass
+class FrameResult:
+    """What :meth:`~weldcell.plugins.mapping.estimator.VioEstimator.process_frame` returns for one frame."""
+
+    t: float
+    T_world_cam: np.ndarray | None
+    """None while initialising."""
+    keyframe: KeyFrame | None
+    tracked: bool
+    events: list[str]
