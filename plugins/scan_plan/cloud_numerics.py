@@ -408,10 +408,10 @@ def sampling_spacings(
 
     ``fine`` is the nearest-neighbour distance; ``coarse`` the distance to the nearest neighbour more than
     60 deg off the local line through the point's 4 nearest neighbours. On an area scan or a voxelised
-    cloud both are alike (coarse ~1.1-1.4 x fine); a laser line profiler swept by a robot has ``fine``
-    ~1 mm along a line and ``coarse`` the 5-7 mm between lines: a neighbourhood must reach ``coarse`` to
-    hold surface rather than one line. Where no neighbour among the ``k`` nearest is off the line, the
-    ``k``-th distance counts (a lower bound).
+    cloud both are alike (coarse 1.2-1.7 x fine after the denoiser's voxel grid); a laser line profiler
+    swept by a robot has ``fine`` ~1 mm along a line and ``coarse`` the 5-7 mm between lines (2-6 x): a
+    neighbourhood must reach ``coarse`` to hold surface rather than one line. Where no neighbour among the
+    ``k`` nearest is off the line, the ``k``-th distance counts (a lower bound).
     """
     P = as_points(points, min_points=6)
     tree = tree if tree is not None else cKDTree(P)
