@@ -124,6 +124,23 @@ def priors(ctx, tr1, tr2, heading1, heading2) -> tuple[dict, list[str]]:
     return out, notes
 
 
+def _record_relocalization(ctx, res, prior, notes: list[str], out: dict) -> dict:
+    """Write ``visit2/relocalization.json`` (the result with the priors' notes) and add the
+    relocalization's figures to ``out``; returns the written document."""
+    doc = res.to_json()
+    doc["notes"] = list(doc.get("notes", [])) + notes
+    ctx.write_json("visit2/relocalization.json", doc)
+    out.update(
+        relocalization_status=res.status,
+        relocalization_overlap=float(res.overlap),
+        relocalization_confidence=float(res.confidence),
+        relocalization_s=float(res.seconds),
+        relocalization_priors=", ".join(res.priors_used),
+        prepare_s=float(prior.prepare_seconds),
+    )
+    return doc
+
+
 def second_visit(ctx, rig, tr1, figures1: dict) -> dict:
     """Drive the second visit, relocalize, update the map; the figures under ``visit2``."""
     from weldcell.plugins.mapping.estimator import VioEstimator
@@ -158,17 +175,7 @@ def second_visit(ctx, rig, tr1, figures1: dict) -> dict:
         prior = stage.prepare(_prior_points(ctx))
         pri, notes = priors(ctx, tr1, tr2, figures1.get("world_heading_rad"), _world_heading(tr2))
         res = stage(prior, cur, **pri)
-        doc = res.to_json()
-        doc["notes"] = list(doc.get("notes", [])) + notes
-        ctx.write_json("visit2/relocalization.json", doc)
-        out.update(
-            relocalization_status=res.status,
-            relocalization_overlap=float(res.overlap),
-            relocalization_confidence=float(res.confidence),
-            relocalization_s=float(res.seconds),
-            relocalization_priors=", ".join(res.priors_used),
-            prepare_s=float(prior.prepare_seconds),
-        )
+        doc = _record_relocalization(ctx, res, prior, notes, out)
         if res.status != "ok":
             out["relocalization_reason"] = res.reason
         A1, A2 = _truth_align(tr1), _truth_align(tr2)
@@ -234,18 +241,8 @@ def on_prior_map(ctx, tr, figures: dict) -> dict:
             pri.pop("current_keyframes", None)
             notes.append("the prior map has no key-frame poses: no key-frame sampling")
         res = stage(prior, cur, **pri)
-        doc = res.to_json()
-        doc["notes"] = list(doc.get("notes", [])) + notes
-        ctx.write_json("visit2/relocalization.json", doc)
-        out.update(
-            keyframes=len(tr.estimator.keyframes),
-            relocalization_status=res.status,
-            relocalization_overlap=float(res.overlap),
-            relocalization_confidence=float(res.confidence),
-            relocalization_s=float(res.seconds),
-            relocalization_priors=", ".join(res.priors_used),
-            prepare_s=float(prior.prepare_seconds),
-        )
+        out["keyframes"] = len(tr.estimator.keyframes)
+        doc = _record_relocalization(ctx, res, prior, notes, out)
     if res.status != "ok":
         out["relocalization_reason"] = res.reason
         out["map_update"] = "not done: the relocalization failed (the prior map is left unchanged)"
