@@ -90,10 +90,13 @@ def decode_quantised(data: bytes) -> tuple[np.ndarray, np.ndarray | None]:
         raise DataError(f"unsupported quantised local map (version {version})", "update weldcell")
     widths, colours = (wx, wy, wz), bool(flags & 1)
     size = n * (sum(widths) + 3 * colours)
-    try:
-        body = zlib.decompress(data[_HEAD.size :])
+    inflater = zlib.decompressobj()
+    try:  # never inflate more than the header promises (+1 byte to notice a longer body)
+        body = inflater.decompress(data[_HEAD.size :], size + 1)
     except zlib.error as e:
         raise DataError(f"damaged quantised local map ({e})", "fetch the segment again") from e
+    if not inflater.eof and len(body) <= size:
+        raise DataError("damaged quantised local map (the compressed body is cut short)", "fetch it again")
     if len(body) != size:
         raise DataError(f"quantised local map holds {len(body)} bytes, {size} expected", "fetch it again")
     raw = np.frombuffer(body, np.uint8)
