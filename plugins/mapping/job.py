@@ -204,6 +204,10 @@ def run(ctx) -> dict:
     from weldcell.plugins.mapping import finish
 
     s = ctx.settings
+    if s.revisit.prior_map is not None:
+        from weldcell.plugins.mapping.prior_map import check_at_start
+
+        check_at_start(ctx)
     rig = make_rig(ctx)
     if rig.site is not None:
         from weldcell.hal.sim.site import RouteSettings

@@ -12,8 +12,10 @@ simulated second visit does. ``prior_map`` is either
 * the address of a map server (``tcp://HOST:PORT``, ``weldcell map serve``): fetched into
   ``RUN/prior_map`` with the ``map-transfer`` stage's client at the start of the relocalization.
 
-The folder is checked when the profile is loaded (:func:`check_prior_map`, one clear error naming what
-is wrong); the files themselves are read with their documented formats (docs/file-formats.md), not with
+A relative folder is relative to the profile that sets it, as every path in a profile. An absolute folder
+is checked when the profile is loaded (:func:`check_prior_map`, one clear error naming what is wrong), a
+relative one when the job starts, before the robot drives (:func:`check_at_start`); the files
+themselves are read with their documented formats (docs/file-formats.md), not with
 the transfer plugin's code.
 """
 
@@ -34,9 +36,12 @@ def is_address(value: str) -> bool:
     return value.startswith("tcp://")
 
 
-def map_folder(value: str | Path) -> Path:
-    """The map folder a ``prior_map`` path names (a run folder means its ``map``)."""
+def map_folder(value: str | Path, base: Path | None = None) -> Path:
+    """The map folder a ``prior_map`` path names (a run folder means its ``map``); a relative path is
+    relative to ``base`` (the folder of the profile that sets it), as every path in a profile."""
     p = Path(value).expanduser()
+    if base is not None and not p.is_absolute():
+        p = base / p
     return p / "map" if not (p / "manifest.json").exists() and (p / "map" / "manifest.json").exists() else p
 
 
@@ -79,6 +84,8 @@ def check_prior_map(value: str | None) -> str | None:
         if not ADDRESS.fullmatch(value):
             raise ValueError(f"prior map server address {value!r} is not tcp://HOST:PORT")
         return value
+    if not Path(value).expanduser().is_absolute():
+        return value  # relative to the profile, which is not known here: checked when the job starts
     problem = prior_map_problem(map_folder(value))
     if problem:
         raise ValueError(problem)
@@ -96,12 +103,33 @@ def resolve_prior_map(ctx) -> Path:
         ctx.stage("transfer").fetch(value, out)
         folder = out
     else:
-        folder = map_folder(value)
+        folder = configured_folder(ctx)
     problem = prior_map_problem(folder)
     if problem:
         raise DataError(problem, "check revisit.prior_map in the profile")
     return folder
 
 
+def configured_folder(ctx) -> Path:
+    """The folder ``revisit.prior_map`` names, a relative path taken from the profile that sets it."""
+    loaded = getattr(ctx, "loaded", None)
+    base = loaded.source_of(("job", "settings", "revisit", "prior_map")).parent if loaded else None
+    return map_folder(ctx.settings.revisit.prior_map, base)
+
+
+def check_at_start(ctx) -> None:
+    """Refuse a prior map folder that is not usable before the robot drives (an address is fetched, and
+    checked, when the relocalization starts)."""
+    from weldcell.sdk.errors import DataError
+
+    value = ctx.settings.revisit.prior_map
+    if value is None or is_address(value):
+        return
+    problem = prior_map_problem(configured_folder(ctx))
+    if problem:
+        raise DataError(problem, "check revisit.prior_map in the profile")
+
+
 PriorMapRef = Annotated[str | None, AfterValidator(check_prior_map)]
-"""The type of ``revisit.prior_map``: checked when the profile is loaded."""
+"""The type of ``revisit.prior_map``: checked when the profile is loaded (a relative folder when the job
+starts, :func:`check_at_start`)."""

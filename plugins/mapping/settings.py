@@ -124,7 +124,8 @@ class RevisitSettings(Settings):
     prior_map: PriorMapRef = Field(
         None,
         description="hardware: this run is the second visit; relocalize on and update this prior map: a "
-        "map folder (RUN/map of an earlier run, or RUN) or a map server tcp://HOST:PORT; checked at load",
+        "map folder (RUN/map of an earlier run, or RUN; relative to the profile) or a map server "
+        "tcp://HOST:PORT; checked at load (a relative folder: when the job starts, before driving)",
     )
 
 

@@ -160,3 +160,25 @@ def test_a_later_run_relocalizes_on_the_prior_map_and_updates_it(job_pm, tmp_pat
         assert new[i]["sha256"] == prior[i]["sha256"]
     # the prior map itself is never written to
     assert {f.name: f.read_bytes() for f in (run1 / "map").iterdir() if f.is_file()} == before
+
+
+def test_a_relative_prior_map_is_relative_to_the_profile_and_checked_before_driving(tmp_path):
+    """As every path in a profile, `prior_map = "runs/x/map"` is relative to the profile that sets it, not
+    to the shell's folder; a wrong one is refused when the job starts, before the robot drives."""
+    from weldcell.plugins.mapping.prior_map import check_at_start, configured_folder
+    from weldcell.sdk.errors import DataError
+
+    m = _map(tmp_path / "cell" / "runs" / "first" / "map")
+    profile = tmp_path / "cell" / "revisit.toml"
+
+    def ctx(value):
+        return SimpleNamespace(
+            settings=MapJobSettings(revisit={"prior_map": value}),
+            loaded=SimpleNamespace(source_of=lambda keypath: profile),
+        )
+
+    assert check_prior_map("runs/first") == "runs/first"  # not checked against the shell's folder
+    assert configured_folder(ctx("runs/first")) == m
+    check_at_start(ctx("runs/first"))
+    with pytest.raises(DataError, match="does not exist"):
+        check_at_start(ctx("runs/second"))
