@@ -74,13 +74,16 @@ class PlyHeader:
 
 @dataclass
 class CloudFileInfo:
-    """What a checked cloud file declares: format, encoding, point count and point fields."""
+    """What a checked cloud file declares: format, encoding, point count, point fields, and the text of
+    its header comments (PLY ``comment`` lines, PCD ``#`` lines; see
+    :func:`weldcell.sdk.cloud.write_cloud`)."""
 
     path: Path
     format: str
     encoding: str
     points: int
     fields: list[str]
+    comments: list[str] = field(default_factory=list)
 
 
 def _fail(path: Path, what: str, fix: str = _REEXPORT) -> DataError:
@@ -244,11 +247,12 @@ def check_ply(path: Path, head: bytes, size: int) -> CloudFileInfo:
         _check_ascii_rows(path, _ascii_rows(path, h.body_start, size, min_bytes), elements, "vertex")
     else:
         _check_ply_binary(path, h, size)
-    return CloudFileInfo(path, "ply", h.fmt, v.count, [n for _, n in v.props])
+    comments = [ln.strip()[len("comment") :].strip() for ln in h.lines[1:] if ln.split()[:1] == ["comment"]]
+    return CloudFileInfo(path, "ply", h.fmt, v.count, [n for _, n in v.props], comments)
 
 
-def _pcd_header(path: Path, head: bytes) -> tuple[dict[str, list[str]], int]:
-    pos, keys = 0, {}
+def _pcd_header(path: Path, head: bytes) -> tuple[dict[str, list[str]], int, list[str]]:
+    pos, keys, comments = 0, {}, []
     while True:
         nl = head.find(b"\n", pos)
         if nl < 0:
@@ -256,6 +260,8 @@ def _pcd_header(path: Path, head: bytes) -> tuple[dict[str, list[str]], int]:
         line = _head_text(path, head[pos:nl], nl - pos, "PCD")
         pos = nl + 1
         tok = line[0].split() if line else []
+        if tok and tok[0].startswith("#"):
+            comments.append(line[0].lstrip()[1:].strip())
         if not tok or tok[0].startswith("#"):
             continue
         key = tok[0].upper()
@@ -265,12 +271,12 @@ def _pcd_header(path: Path, head: bytes) -> tuple[dict[str, list[str]], int]:
             raise _fail(path, f"PCD header repeats {key}")
         keys[key] = tok[1:]
         if key == "DATA":
-            return keys, pos
+            return keys, pos, comments
 
 
 def check_pcd(path: Path, head: bytes, size: int) -> CloudFileInfo:
     """Check a PCD file's header (fields, sizes, types, counts) and the size of its body."""
-    keys, body_start = _pcd_header(path, head)
+    keys, body_start, comments = _pcd_header(path, head)
     for k in ("FIELDS", "SIZE", "TYPE", "WIDTH", "DATA"):
         if not keys.get(k):
             raise _fail(path, f"PCD header has no {k}")
@@ -312,7 +318,7 @@ def check_pcd(path: Path, head: bytes, size: int) -> CloudFileInfo:
         _check_pcd_compressed(path, body_start, body, points * row)
     else:
         raise _fail(path, f"unknown PCD DATA {data!r}", "use ascii, binary or binary_compressed")
-    return CloudFileInfo(path, "pcd", data, points, fields)
+    return CloudFileInfo(path, "pcd", data, points, fields, comments)
 
 
 def _check_pcd_compressed(path: Path, body_start: int, body: int, raw_size: int) -> None:

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from weldcell.sdk.cloud import PointCloud
+from weldcell.sdk.errors import PluginError
 from weldcell.sdk.scan import PosedScan
 from weldcell.sdk.weldpath import WeldPath
 
@@ -22,8 +23,9 @@ from weldcell.sdk.weldpath import WeldPath
 class ReconstructStage(Protocol):
     """kind ``reconstruct``: merge posed views into one model in the robot base frame.
 
-    Returns an object with ``cloud`` (PointCloud, base frame), ``fitness_before``, ``fitness`` and
-    ``accepted`` (one entry per view).
+    Returns an object with ``cloud`` (PointCloud, base frame, ``viewpoints`` = the views' camera
+    positions in the base frame when known), ``fitness_before``, ``fitness`` and ``accepted`` (one
+    entry per view).
     """
 
     def __call__(
@@ -35,15 +37,45 @@ class ReconstructStage(Protocol):
 
 
 class DenoiseStage(Protocol):
-    """kind ``denoise``: a cleaner (and usually thinner) cloud; keep ``meta`` (it carries viewpoints)."""
+    """kind ``denoise``: a cleaner (and usually thinner) cloud of the same scan, in the same frame.
+
+    Build the output with ``cloud.with_points(points, normals=...)``: it keeps the frame, the
+    ``viewpoints`` and ``meta``. A stage may attach the neighbour table of its output points
+    (``out.with_neighbours(table)``, a :class:`~weldcell.sdk.cloud.NeighbourTable`) for the seam stage
+    to reuse. Jobs pass the output through :func:`denoised_scan`, so viewpoints a stage left out are
+    carried over and a changed frame is refused.
+    """
 
     def __call__(self, cloud: PointCloud) -> PointCloud: ...
 
 
+def denoised_scan(scan: PointCloud, out: PointCloud) -> PointCloud:
+    """A denoise stage's output ``out`` with what it must keep of its input ``scan``: the frame (a
+    stage that moved the cloud is refused with :class:`PluginError`) and the viewpoints (carried over
+    when the stage built its output without them: they are where the sensor was, whichever points
+    remain)."""
+    if not isinstance(out, PointCloud):
+        raise PluginError(
+            f"the denoise stage returned a {type(out).__name__}, not a PointCloud",
+            "a denoise stage returns cloud.with_points(points, normals=...) (see the plugin-author guide)",
+        )
+    if out.frame != scan.frame:
+        raise PluginError(
+            f"the denoise stage returned a cloud in frame '{out.frame}' for one in '{scan.frame}'",
+            "a denoise stage keeps the frame: build its output with cloud.with_points(points, normals=...)",
+        )
+    if out.viewpoints is None and scan.viewpoints is not None:
+        out = out.with_viewpoints(scan.viewpoints)
+    return out
+
+
 class SeamStage(Protocol):
-    """kind ``seam``: find weld seams. Returns an object with ``seams``: a list of polylines, each with
-    ``id``, ``joint_class``, ``points`` (K, 3) ordered along travel, ``normals`` (K, 3) approach
-    directions into the joint, ``closed`` and ``length``."""
+    """kind ``seam``: find weld seams on a cloud; what it may use besides the points travels in typed
+    fields of the cloud: ``normals``, ``viewpoints`` (sensor positions, same frame; None when unknown)
+    and ``neighbours`` (a :class:`~weldcell.sdk.cloud.NeighbourTable` of exactly these points, or None).
+    Returns an object with ``seams``: a list of polylines, each with ``id``, ``joint_class``, ``points``
+    (K, 3) ordered along travel, ``normals`` (K, 3) approach directions into the joint, ``closed`` and
+    ``length``."""
 
     def __call__(self, cloud: PointCloud) -> Any: ...
 

@@ -21,13 +21,13 @@ import click
 import numpy as np
 from pydantic import ValidationError
 from weldcell.sdk.artifacts import write_json, write_text
-from weldcell.sdk.cloud import PointCloud, write_cloud
+from weldcell.sdk.cloud import UNIT_SCALE, PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, UsageError
 from weldcell.sdk.geometry import T_from_rpy, rotation_angle
 from weldcell.sdk.units import parse_quantity
 from weldcell.sdk.weldpath import WeldPath
 
-from .cloud_pipeline import plan_on_cloud
+from .cloud_pipeline import SeamRun, plan_on_cloud
 from .scans_io import SCANS_SCHEMA, PosedScans, check_mount, load_posed_scans, read_input_cloud  # noqa: F401
 
 JOB = "scan-and-plan"
@@ -213,7 +213,7 @@ def _pm():
     metavar="ROLE.KEY=VALUE",
     help="Set a stage setting, e.g. seam.min_seam_length='30 mm'. Repeatable.",
 )
-# one parameter per click option (click passes them by name); the work is in plan_on_cloud
+# one parameter per click option (click passes them by name); the body calls named steps and plan_on_cloud
 def seam_command(
     cloud: Path,
     output: Path,
@@ -243,18 +243,9 @@ def seam_command(
     exporters = [pm.registry.get("exporter", EXPORT_ALIASES.get(e, e)) for e in exports]
     for spec in exporters:
         spec.check_available()
-
     t0 = time.perf_counter()
-    pc, dropped = read_input_cloud(cloud, units, frame)
+    pc, dropped = _read_seam_cloud(cloud, units, frame, viewpoint)
     t_read = time.perf_counter() - t0
-    click.echo(
-        f"cloud           {cloud}: {len(pc)} points, extent "
-        f"{' x '.join(f'{v * 1000:.0f}' for v in np.ptp(pc.points, axis=0))} mm"
-    )
-    if dropped:
-        click.echo(f"                dropped {dropped} invalid points (NaN, inf or at the origin)")
-    if viewpoint is not None:
-        pc.meta["viewpoints"] = [parse_floats(viewpoint, 3, ("length",) * 3, "--viewpoint").tolist()]
     result = plan_on_cloud(
         pc, lambda role: stages[role][0].factory(stages[role][1]), frame=frame, denoise=not no_denoise
     )
@@ -264,9 +255,43 @@ def seam_command(
             f"no weld seam was found on {cloud} ({len(result.cloud)} points)",
             "check the cloud shows the joint; lower --t, or --set seam.min_seam_length='10 mm'",
         )
+    path.metrics = _seam_metrics(cloud, pc, dropped, result, stages, t_read)
+    path.write(output)
+    written = [output, *_write_exports(path, output, exporters)]
+    summary = _echo_seams(cloud, pc, result, stages, t_read)
+    if report_dir is not None:
+        written += write_seam_report(report_dir, cloud, result.cloud, path, summary, list(written))
+    click.echo("written         " + ", ".join(str(f) for f in written))
+
+
+def _read_seam_cloud(cloud: Path, units: str, frame: str, viewpoint: str | None) -> tuple[PointCloud, int]:
+    """The cloud in metres without invalid points, and how many were dropped; ``--viewpoint`` replaces
+    the viewpoints the file stored (:func:`weldcell.sdk.cloud.write_cloud` keeps them in its header)."""
+    pc, dropped = read_input_cloud(cloud, units, frame)
+    if pc.viewpoints is not None and units != "m":  # stored in the file's units, as its points
+        pc = pc.with_viewpoints(pc.viewpoints * UNIT_SCALE[units])
+    if viewpoint is not None:
+        pc = pc.with_viewpoints([parse_floats(viewpoint, 3, ("length",) * 3, "--viewpoint")])
+    click.echo(
+        f"cloud           {cloud}: {len(pc)} points, extent "
+        f"{' x '.join(f'{v * 1000:.0f}' for v in np.ptp(pc.points, axis=0))} mm"
+    )
+    if dropped:
+        click.echo(f"                dropped {dropped} invalid points (NaN, inf or at the origin)")
+    if pc.viewpoints is not None:
+        where = "--viewpoint" if viewpoint else "stored in the file"
+        click.echo(f"viewpoints      {len(pc.viewpoints)} ({where})")
+    return pc, dropped
+
+
+def _seam_metrics(
+    cloud: Path, pc: PointCloud, dropped: int, result: SeamRun, stages: dict, t_read: float
+) -> dict[str, Any]:
+    """The weld path's ``metrics`` of one ``weldcell seam`` run: input, counts, timings, stages."""
+    path = result.path
     runtime = t_read + sum(result.timings.values())
     length = sum(s.length for s in path.seams)
-    path.metrics = {
+    return {
         "source": str(cloud),
         "points": len(pc),
         "points_processed": len(result.cloud),
@@ -280,8 +305,11 @@ def seam_command(
             r: {"plugin": sp.name, "settings": st.model_dump(mode="json")} for r, (sp, st) in stages.items()
         },
     }
-    path.write(output)
-    written = [output]
+
+
+def _write_exports(path: WeldPath, output: Path, exporters: list) -> list[Path]:
+    """The robot programs of ``exporters`` next to ``output``; returns the files written."""
+    written = []
     doc = path.to_json()
     for spec in exporters:
         f = output.with_name(output.stem + spec.suffix)
@@ -289,7 +317,13 @@ def seam_command(
             f = output.with_name(output.stem + "_export" + spec.suffix)
         write_text(f, spec.export(doc, spec.settings()))
         written.append(f)
-    if not no_denoise:
+    return written
+
+
+def _echo_seams(cloud: Path, pc: PointCloud, result: SeamRun, stages: dict, t_read: float) -> list[str]:
+    """Print what was found (seam table, timings); returns the lines of the report's summary."""
+    path = result.path
+    if "denoise" in stages:
         click.echo(f"denoised        {len(result.cloud)} points ({stages['denoise'][0].name})")
     click.echo(
         f"seams found     {len(path.seams)} ({stages['seam'][0].name}, paths: {stages['path'][0].name})"
@@ -297,20 +331,19 @@ def seam_command(
     table = seam_table(path)
     for line in table:
         click.echo(line)
+    runtime = t_read + sum(result.timings.values())
+    length = sum(s.length for s in path.seams)
     timing = ", ".join(f"{k} {v:.2f}s" for k, v in result.timings.items())
     click.echo(
         f"timings         read {t_read:.2f}s, {timing}  ({length * 1000 / runtime:.0f} mm of seam per s)"
     )
-    if report_dir is not None:
-        summary = [
-            f"weldcell seam {cloud}",
-            f"points {len(pc)}, processed {len(result.cloud)}",
-            f"seams {len(path.seams)}",
-            *table,
-            f"timings read {t_read:.2f}s, {timing}",
-        ]
-        written += write_seam_report(report_dir, cloud, result.cloud, path, summary, list(written))
-    click.echo("written         " + ", ".join(str(f) for f in written))
+    return [
+        f"weldcell seam {cloud}",
+        f"points {len(pc)}, processed {len(result.cloud)}",
+        f"seams {len(path.seams)}",
+        *table,
+        f"timings read {t_read:.2f}s, {timing}",
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ reconstruct
@@ -373,7 +406,7 @@ def hand_eye_option(
     help="Model placement (same as --set reconstruct.anchor=...): 'hand-eye' also finds the hand-eye "
     "transform's error from the views and corrects it.",
 )
-# one parameter per click option (click passes them by name); the work is in reconstruct()
+# one parameter per click option (click passes them by name); the body calls named steps and the stage
 def reconstruct_command(
     scans_dir: Path,
     output: Path,
@@ -390,37 +423,67 @@ def reconstruct_command(
     SCANS_DIR is a scan-and-plan run folder (state.json) or a folder with a scans.json
     (weldcell/posed-scans@1).
     """
-    pm = _pm()
     overrides = parse_sets(sets)
     if anchor is not None:
         overrides.setdefault("reconstruct", {})["anchor"] = anchor
-    stages = resolve_stages(pm, ("reconstruct",), profile, overrides)
+    spec, settings = resolve_stages(_pm(), ("reconstruct",), profile, overrides)["reconstruct"]
     data = load_posed_scans(scans_dir)
     T_fc, source = hand_eye_option(hand_eye, mount, data.T_flange_camera)
-    spec, settings = stages["reconstruct"]
-    lo = parse_floats(roi_min, 3, ("length",) * 3, "--roi-min") if roi_min else data.roi[0]
-    hi = parse_floats(roi_max, 3, ("length",) * 3, "--roi-max") if roi_max else data.roi[1]
     click.echo(f"scans           {len(data.scans)} from {scans_dir} ({data.layout}); hand-eye: {source}")
-    views, names = data.scans, data.names
-    if lo is not None or hi is not None:
-        from weldcell.plugins.scan_plan.job import crop_views
-
-        cropped = crop_views(data.scans, T_fc, lo, hi)
-        if not cropped:
-            raise DataError(
-                "no scan has points inside the region of interest",
-                "check --roi-min / --roi-max (metres, robot base frame) against the part",
-            )
-        views, names = [v for _, v in cropped], [data.names[i] for i, _ in cropped]
-        fmt = lambda c: "-" if c is None else "(" + ", ".join(f"{v * 1000:.0f}" for v in c) + ") mm"  # noqa: E731
-        click.echo(
-            f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "
-            "views have points in it"
-        )
+    views, names = _views_in_region(data, T_fc, roi_min, roi_max)
     t0 = time.perf_counter()
     rec = spec.factory(settings)(views, T_fc)
     dt = time.perf_counter() - t0
-    write_cloud(output, rec.cloud)
+    write_cloud(output, rec.cloud)  # with the views' camera positions: `weldcell seam` reads them back
+    _echo_views(rec, views, names)
+    click.echo(f"model           {len(rec.cloud)} points -> {output}  ({dt:.2f} s, {spec.name})")
+    he = getattr(rec, "hand_eye", None)
+    if he is not None:
+        click.echo(f"hand-eye        {he.describe()}")
+    doc = {
+        "schema": "weldcell/reconstruction@1",
+        "model": output.name,
+        "scans": str(scans_dir),
+        "hand_eye": source,
+        "T_flange_camera": T_fc.tolist(),
+        "stage": {"plugin": spec.name, "settings": settings.model_dump(mode="json")},
+        "views": _view_records(rec, names),
+        "runtime_s": round(dt, 4),
+    }
+    if he is not None:
+        doc["hand_eye_correction"] = he.summary()
+        if he.applied:
+            doc["T_flange_camera_corrected"] = (T_fc @ he.D).tolist()
+    write_json(output.with_suffix(".json"), doc)
+
+
+def _views_in_region(
+    data: PosedScans, T_fc: np.ndarray, roi_min: str | None, roi_max: str | None
+) -> tuple[list, list[str]]:
+    """The views (cropped to --roi-min/--roi-max, else to the run's region) and their names."""
+    lo = parse_floats(roi_min, 3, ("length",) * 3, "--roi-min") if roi_min else data.roi[0]
+    hi = parse_floats(roi_max, 3, ("length",) * 3, "--roi-max") if roi_max else data.roi[1]
+    if lo is None and hi is None:
+        return data.scans, data.names
+    from weldcell.plugins.scan_plan.job import crop_views
+
+    cropped = crop_views(data.scans, T_fc, lo, hi)
+    if not cropped:
+        raise DataError(
+            "no scan has points inside the region of interest",
+            "check --roi-min / --roi-max (metres, robot base frame) against the part",
+        )
+    views, names = [v for _, v in cropped], [data.names[i] for i, _ in cropped]
+    fmt = lambda c: "-" if c is None else "(" + ", ".join(f"{v * 1000:.0f}" for v in c) + ") mm"  # noqa: E731
+    click.echo(
+        f"region          {fmt(lo)} .. {fmt(hi)} (base frame); {len(views)} of {len(data.scans)} "
+        "views have points in it"
+    )
+    return views, names
+
+
+def _echo_views(rec: Any, views: list, names: list[str]) -> None:
+    """One line per view: points, fitness before/after, the ICP correction, kept."""
     click.echo(
         f"{'view':>4}  {'file':<16} {'points':>7}  {'fitness before':>14}  {'after':>6}  "
         f"{'correction':>17}  kept"
@@ -432,33 +495,17 @@ def reconstruct_command(
             f"{i:>4}  {name:<16} {len(views[i].cloud):>7}  {rec.fitness_before[i]:>14.3f}  "
             f"{rec.fitness[i]:>6.3f}  {corr:>17}  {'yes' if rec.accepted[i] else 'no'}"
         )
-    click.echo(f"model           {len(rec.cloud)} points -> {output}  ({dt:.2f} s, {spec.name})")
-    he = getattr(rec, "hand_eye", None)
-    if he is not None:
-        click.echo(f"hand-eye        {he.describe()}")
-    write_json(
-        output.with_suffix(".json"),
+
+
+def _view_records(rec: Any, names: list[str]) -> list[dict[str, Any]]:
+    """The ``views`` of the ``weldcell/reconstruction@1`` file."""
+    return [
         {
-            "schema": "weldcell/reconstruction@1",
-            "model": output.name,
-            "scans": str(scans_dir),
-            "hand_eye": source,
-            "T_flange_camera": T_fc.tolist(),
-            "stage": {"plugin": spec.name, "settings": settings.model_dump(mode="json")},
-            "views": [
-                {
-                    "file": n,
-                    "fitness_before": rec.fitness_before[i],
-                    "fitness": rec.fitness[i],
-                    "accepted": bool(rec.accepted[i]),
-                    "T_base_camera": np.asarray(rec.T_base_camera[i]).tolist(),
-                }
-                for i, n in enumerate(names)
-            ],
-            "runtime_s": round(dt, 4),
-            **({"hand_eye_correction": he.summary()} if he is not None else {}),
-            **(
-                {"T_flange_camera_corrected": (T_fc @ he.D).tolist()} if he is not None and he.applied else {}
-            ),
-        },
-    )
+            "file": n,
+            "fitness_before": rec.fitness_before[i],
+            "fitness": rec.fitness[i],
+            "accepted": bool(rec.accepted[i]),
+            "T_base_camera": np.asarray(rec.T_base_camera[i]).tolist(),
+        }
+        for i, n in enumerate(names)
+    ]

@@ -3,12 +3,14 @@
 * :func:`as_points` -- the (N, 3) finite-array check every entry point runs;
 * :func:`radius_pairs` -- all neighbour pairs within a radius, as flat (COO) arrays, built in C by
   scipy's ``cKDTree.sparse_distance_matrix`` in chunks (bounded memory, no per-point Python loop);
-* :func:`pca_normals` -- eq. 9: the normal of the least-squares plane through each point's neighbours;
+* :func:`pca_normals` -- eq. 9: the normal of the least-squares plane through each point's neighbours
+  (:func:`knn_normals`: with the k nearest, for all points or a subset);
 * :func:`mean_spacing` / :func:`noise_level` -- the cloud's own scale and noise (what the stages derive
   their radii and thresholds from);
 * :func:`voxel_downsample` -- the down-sampling on a tilted voxel grid;
-* :class:`NeighbourTable` / :func:`knn_table` -- one k-nearest-neighbour query whose table the bilateral
-  filter and the seam stage share; :func:`offsets` / :func:`masked_covariance` over its rows;
+* :func:`knn_table` -- one k-nearest-neighbour query, a :class:`weldcell.sdk.cloud.NeighbourTable` the
+  bilateral filter and the seam stage share (the denoiser attaches it to its output cloud);
+  :func:`offsets` / :func:`masked_covariance` over its rows;
 * :func:`sym3_eigvals` / :func:`smallest_eigvec` / :func:`largest_eigvec` -- a closed-form 3x3 symmetric
   eigen-solver for the many small covariance matrices (eq. 9 and the seam stage's plane fits).
 
@@ -19,11 +21,11 @@ and this module imports none of them.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 from weldcell.sdk.arrays import col_max, col_min, row_sums
+from weldcell.sdk.cloud import NeighbourTable  # the table type lives in the sdk: clouds carry it
 from weldcell.sdk.errors import DataError
 
 #: rows of query points per chunk of the radius search (bounds the memory of the pair arrays)
@@ -157,19 +159,24 @@ def pca_normals(
             normals[sl], _, counts[sl] = _covariance_normals(P, rows, cols, sl.stop - sl.start)
         few = np.flatnonzero(counts < min_neighbors)
         if len(few):
-            normals[few] = _knn_normals(P, tree, min(k, len(P)), few)
+            normals[few] = knn_normals(P, tree, min(k, len(P)), few)
     else:
-        normals = _knn_normals(P, tree, min(k, len(P)), None)
+        normals = knn_normals(P, tree, min(k, len(P)), None)
     return orient_normals(normals, P, viewpoint)
 
 
-def _knn_normals(P: np.ndarray, tree: cKDTree, k: int, subset: np.ndarray | None) -> np.ndarray:
+def knn_normals(P: np.ndarray, tree: cKDTree, k: int, subset: np.ndarray | None) -> np.ndarray:
+    """Eq. 9 with the ``k`` nearest points: the PCA normal (unoriented) of every point of ``P`` (or of
+    the points ``subset``), neighbours searched in ``tree`` (a KD-tree of ``P``)."""
     Xq = P if subset is None else P[subset]
     _, idx = tree.query(Xq, k=max(k, 3), workers=-1)
     Q = P[idx]
     D = Q - Q.mean(axis=1, keepdims=True)
     C = np.einsum("nki,nkj->nij", D, D)
     return smallest_eigvec(C)
+
+
+_knn_normals = knn_normals  # the former private name (denoise re-exports it)
 
 
 def mean_spacing(
@@ -190,57 +197,13 @@ def mean_spacing(
     return float(np.mean(d[:, 1]))
 
 
-@dataclass
-class NeighbourTable:
-    """Neighbours of every point of ``points`` from one KD-tree query: ``idx`` and ``dist`` (N, k + 1),
-    the point itself in column 0, then its ``k`` nearest neighbours within ``radius`` (any order;
-    missing entries -- fewer than ``k`` points within ``radius`` -- hold the point's own index and an
-    infinite distance).
-
-    ``points`` is the cloud the table belongs to; a consumer uses the table only for that very array
-    (identity), so a cropped or transformed copy of a cloud never uses a stale table.
-    """
-
-    points: np.ndarray
-    idx: np.ndarray
-    dist: np.ndarray
-    radius: float = float("inf")
-
-    @property
-    def k(self) -> int:
-        """Neighbours per point (self not counted)."""
-        return self.idx.shape[1] - 1
-
-    def moved_to(self, points: np.ndarray) -> NeighbourTable:
-        """The same neighbour sets on moved ``points`` (same order of points, e.g. after the bilateral
-        filter), distances recomputed. Valid while the points move by much less than the spacing: the
-        sets then still hold every point within ``radius`` minus about the largest move."""
-        P = np.asarray(points, dtype=float)
-        x, y, z = offsets(P, self.idx)
-        d = np.sqrt(x * x + y * y + z * z)
-        d[~np.isfinite(self.dist)] = np.inf
-        return NeighbourTable(P, self.idx, d, self.radius)
-
-    def matches(self, points: np.ndarray, k: int = 0) -> bool:
-        """Is this the table of exactly ``points`` (the same array object), with at least ``k`` neighbours?"""
-        return points is self.points and self.idx.shape[0] == len(points) and self.k >= k
-
-
 def knn_table(
     points: np.ndarray, k: int, radius: float = float("inf"), tree: cKDTree | None = None
 ) -> NeighbourTable:
     """One query for the (at most) ``k`` nearest neighbours within ``radius`` of every point, plus the
-    point itself (2 threads). A finite ``radius`` makes the search ~2-3x faster than an unbounded one."""
-    P = as_points(points, min_points=2)
-    k = int(min(k, len(P) - 1))
-    tree = tree if tree is not None else cKDTree(P)
-    dist, idx = tree.query(P, k=k + 1, workers=-1, distance_upper_bound=radius)
-    miss = ~np.isfinite(dist)
-    if miss.any():
-        idx[miss] = np.broadcast_to(np.arange(len(P))[:, None], idx.shape)[miss]
-    idx[:, 0] = np.arange(len(P))  # self first (a duplicate point could tie with it)
-    dist[:, 0] = 0.0
-    return NeighbourTable(P, idx, dist, float(radius))
+    point itself (2 threads): :meth:`weldcell.sdk.cloud.NeighbourTable.search` after this package's point
+    check. A finite ``radius`` makes the search ~2-3x faster than an unbounded one."""
+    return NeighbourTable.search(as_points(points, min_points=2), k, radius, tree)
 
 
 def offsets(P: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from weldcell.sdk.cloud import PointCloud
+from weldcell.sdk.stages import denoised_scan
 from weldcell.sdk.weldpath import WeldPath
 
 STEPS = {
@@ -49,6 +50,8 @@ def plan_on_cloud(
     ``stage(role)`` gives the stage object of a role (``denoise``, ``seam``, ``path``); ``step(name)``,
     when given, is a context manager around each stage (the job's ``ctx.step``, named by :data:`STEPS`);
     ``on_denoised(cloud)`` is called inside the denoise step (the job writes the cloud there).
+    The seam stage gets the scan's viewpoints even from a denoise stage that built its output without
+    them (:func:`weldcell.sdk.stages.denoised_scan`).
     """
     timings: dict[str, float] = {}
 
@@ -60,7 +63,7 @@ def plan_on_cloud(
         with around("denoise"):
             fn = stage("denoise")
             t0 = time.perf_counter()
-            clean = fn(cloud)
+            clean = denoised_scan(cloud, fn(cloud))
             timings["denoise"] = time.perf_counter() - t0
             if on_denoised is not None:
                 on_denoised(clean)

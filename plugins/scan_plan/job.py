@@ -270,8 +270,10 @@ def _reconstruct(ctx, scans: list[PosedScan], T_flange_camera: np.ndarray):
         for w in caught:  # e.g. an ICP correction refused: the operator sees it as a line, not a traceback
             ctx.reporter.info(f"[yellow]{escape(str(w.message))}[/yellow]")
         ctx.figures["reconstruction_notes"] = [str(w.message) for w in caught]
+        if rec.cloud.viewpoints is None:  # a reconstruct stage that does not say where the cameras were
+            eyes = [(sc.T_base_flange @ T_flange_camera)[:3, 3] for sc in scans]
+            rec.cloud = rec.cloud.with_viewpoints(eyes)
         write_cloud(ctx.path("model.ply"), rec.cloud)
-        rec.cloud.meta["viewpoints"] = [(sc.T_base_flange @ T_flange_camera)[:3, 3].tolist() for sc in scans]
     ctx.figures["reconstruction"] = {
         "points": len(rec.cloud),
         "fitness_before": rec.fitness_before,

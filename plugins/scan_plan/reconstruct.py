@@ -31,8 +31,9 @@ ANCHORS = ("mean", "first", "hand-eye")
 class ReconstructResult:
     """Outcome of :func:`reconstruct`.
 
-    ``cloud`` is the merged model in the base frame. Per view ``i``: ``T_base_camera[i]`` the refined
-    camera pose, ``corrections[i]`` the ICP correction ``T_base_base'`` applied on top of eq. 1 (identity
+    ``cloud`` is the merged model in the base frame (``viewpoints``: each view's camera position). Per
+    view ``i``: ``T_base_camera[i]`` the refined camera pose, ``corrections[i]`` the ICP correction
+    ``T_base_base'`` applied on top of eq. 1 (identity
     for the first view and for rejected corrections), ``fitness_before[i]`` / ``fitness[i]`` eq. 20
     against the model before / after refinement, ``accepted[i]`` whether the ICP correction was kept,
     ``icp[i]`` the full :class:`IcpResult` (None for the first view or when ICP was off).
@@ -150,17 +151,25 @@ def view_to_base(scan: PosedScan, T_flange_camera: np.ndarray) -> tuple[np.ndarr
 
 
 def merge_views(views: Sequence[PosedScan], T_flange_camera: np.ndarray) -> PointCloud:
-    """Union of all views mapped into the base frame with eq. 1 (no refinement)."""
+    """Union of all views mapped into the base frame with eq. 1 (no refinement); its viewpoints are the
+    views' camera positions."""
     if len(views) == 0:
         raise DataError("no views to merge", "capture at least one view")
-    parts = [view_to_base(v, T_flange_camera)[0] for v in views]
+    placed = [view_to_base(v, T_flange_camera) for v in views]
+    parts = [P for P, _ in placed]
     normals = None
     if all(v.cloud.normals is not None for v in views):
         T_fc = np.asarray(T_flange_camera, dtype=float)
         normals = np.concatenate(
             [v.cloud.normals @ (np.asarray(v.T_base_flange)[:3, :3] @ T_fc[:3, :3]).T for v in views]
         )
-    return PointCloud(np.concatenate(parts), normals=normals, frame="base", meta={"n_views": len(views)})
+    return PointCloud(
+        np.concatenate(parts),
+        normals=normals,
+        frame="base",
+        meta={"n_views": len(views)},
+        viewpoints=[T[:3, 3] for _, T in placed],
+    )
 
 
 def reconstruct(
@@ -176,7 +185,8 @@ def reconstruct(
     hand-eye) and is registered by :func:`linear_icp` to the model merged so far (``register_to_model``;
     with False, views are only merged by eq. 1). Both the view and the model are voxel-down-sampled at
     ``voxel`` metres for registration; the returned cloud is the union of all points with the refined
-    poses, down-sampled at ``voxel`` (None keeps every point).
+    poses, down-sampled at ``voxel`` (None keeps every point); its ``viewpoints`` are the views' camera
+    positions (the registered ``T_base_camera``).
     ``max_correspondence_distance`` defaults to 3 x ``voxel`` (or 1 cm without a voxel). The reported
     fitness (eq. 20, view points aligned to the model / model points) counts pairs closer than
     ``fitness_distance`` (default: a third of the correspondence distance, i.e. the voxel size).
@@ -204,95 +214,137 @@ def reconstruct(
     if n == 0:
         raise DataError("no scans to reconstruct", "capture at least one view")
     o = options
-    voxel, anchor, register_to_model = o.voxel, o.anchor, o.register_to_model
-    max_correction = o.max_correction
-    d_max = o.correspondence_distance
-    d_fit = o.fitness_distance or d_max / 3.0
+    v = _register_views(scans, T_flange_camera, o, progress)
+    fit = None
+    if o.anchor == "hand-eye" and o.register_to_model:
+        fit = _place_by_hand_eye(v, o, progress)
+    shift = np.eye(4)
+    if (o.anchor == "mean" or (fit is not None and not fit.applied)) and o.register_to_model:
+        shift = _place_by_mean(v)
+    merged = _down(np.concatenate(v.full), o.voxel)
+    cloud = PointCloud(
+        merged,
+        frame="base",
+        meta={"n_views": n, "voxel": o.voxel, "anchor": o.anchor},
+        viewpoints=[T[:3, 3] for T in v.T_bc],
+    )
+    return ReconstructResult(
+        cloud, v.T_bc, v.corrections, v.fit_before, v.fit_after, v.accepted, v.icps, shift, fit
+    )
 
-    def down(P: np.ndarray) -> np.ndarray:
-        return voxel_downsample(P, voxel_size=voxel) if voxel else P
 
-    full: list[np.ndarray] = []
-    T_kin: list[np.ndarray] = []
-    info: list[np.ndarray] = []
-    srcs: list[np.ndarray] = []
-    T_bc: list[np.ndarray] = []
-    corrections: list[np.ndarray] = []
-    fit_before: list[float] = []
-    fit_after: list[float] = []
-    accepted: list[bool] = []
-    icps: list[IcpResult | None] = []
+@dataclass
+class _Views:
+    """The views as :func:`reconstruct` registers and places them: per view its points in the base
+    frame (``full``), eq.-1 pose ``T_kin``, registered pose ``T_bc``, correction, fitness before/after,
+    acceptance and ICP result; for the hand-eye anchor the registration information and the
+    registration points in the camera frame (``srcs``)."""
+
+    full: list[np.ndarray] = field(default_factory=list)
+    T_kin: list[np.ndarray] = field(default_factory=list)
+    T_bc: list[np.ndarray] = field(default_factory=list)
+    corrections: list[np.ndarray] = field(default_factory=list)
+    fit_before: list[float] = field(default_factory=list)
+    fit_after: list[float] = field(default_factory=list)
+    accepted: list[bool] = field(default_factory=list)
+    icps: list[IcpResult | None] = field(default_factory=list)
+    info: list[np.ndarray] = field(default_factory=list)
+    srcs: list[np.ndarray] = field(default_factory=list)
+
+
+def _down(P: np.ndarray, voxel: float | None) -> np.ndarray:
+    return voxel_downsample(P, voxel_size=voxel) if voxel else P
+
+
+def _register_views(
+    scans: Sequence[PosedScan], T_flange_camera: np.ndarray, o: ReconstructOptions, progress: Progress | None
+) -> _Views:
+    """Step 1: each view into the base frame (eq. 1), registered to the model merged so far (the first
+    seeds it), and added to the model."""
+    n, v = len(scans), _Views()
     model = np.empty((0, 3))
-    icp = o.icp()
-    icp_prior = replace(icp, prior=o.prior)
+    icp_prior = replace(o.icp(), prior=o.prior)
+    hand_eye = o.anchor == "hand-eye" and o.register_to_model
     for i, scan in enumerate(scans):
         P, T0 = view_to_base(scan, T_flange_camera)
-        corr = np.eye(4)
-        res = None
-        ok = True
-        fb = fa = 1.0
-        if i > 0 and register_to_model:
-            src = down(P)
-            # one KD-tree of the model per view, shared by the normals (computed only where the view
-            # overlaps the model), the correspondence search and eq. 20 before and after
-            tree = PointTree(model)
-            res = linear_icp(src, model, icp_prior, target_tree=tree)
-            info.append(res.information)
-            fb = _fitness(res.initial_distances, src, np.eye(4), tree, d_fit, d_max)
-            fa = _fitness(res.distances, src, res.T, tree, d_fit, d_max)
-            dt = float(np.linalg.norm(res.T[:3, 3]))
-            dr = rotation_angle(res.T[:3, :3])
-            ok = dt <= max_correction[0] and dr <= max_correction[1] and fa >= fb - 0.02
-            if ok:
-                corr = res.T
-            else:
-                warnings.warn(
-                    f"view {i}: ICP correction {dt * 1e3:.1f} mm / {np.rad2deg(dr):.2f} deg "
-                    f"(fitness {fb:.3f} -> {fa:.3f}) rejected; kept the kinematic pose",
-                    stacklevel=2,
-                )
-                fa = fb
-        elif i == 0 and register_to_model and anchor == "hand-eye":
-            src = down(P)
-            info.append(point_to_plane_information(src, pca_normals(src, k=o.normal_k)))
-        if anchor == "hand-eye" and register_to_model:  # on the camera's voxel grid, see _leave_one_out
-            srcs.append(down(as_points(scan.cloud.points, "view cloud")))
+        corr, res, ok, fb, fa = np.eye(4), None, True, 1.0, 1.0
+        if i > 0 and o.register_to_model:
+            corr, res, ok, fb, fa = _register_view(i, _down(P, o.voxel), model, o, icp_prior)
+            v.info.append(res.information)
+        elif i == 0 and hand_eye:
+            src = _down(P, o.voxel)
+            v.info.append(point_to_plane_information(src, pca_normals(src, k=o.normal_k)))
+        if hand_eye:  # on the camera's voxel grid, see _leave_one_out
+            v.srcs.append(_down(as_points(scan.cloud.points, "view cloud"), o.voxel))
         Pc = P @ corr[:3, :3].T + corr[:3, 3]
-        T_kin.append(T0)
-        full.append(Pc)
-        T_bc.append(corr @ T0)
-        corrections.append(corr)
-        fit_before.append(fb)
-        fit_after.append(fa)
-        accepted.append(ok)
-        icps.append(res)
-        model = down(np.concatenate([model, Pc])) if register_to_model else model
+        v.T_kin.append(T0)
+        v.full.append(Pc)
+        v.T_bc.append(corr @ T0)
+        v.corrections.append(corr)
+        v.fit_before.append(fb)
+        v.fit_after.append(fa)
+        v.accepted.append(ok)
+        v.icps.append(res)
+        model = _down(np.concatenate([model, Pc]), o.voxel) if o.register_to_model else model
         if progress is not None:
             progress(i + 1, n, f"view {i + 1}/{n}: fitness {fb:.3f} -> {fa:.3f}")
-    shift = np.eye(4)
-    fit = None
-    if anchor == "hand-eye" and register_to_model:
-        conf = [1.0] + [
-            r.inlier_fraction if ok and r.inlier_fraction >= MIN_OVERLAP else 0.0
-            for r, ok in zip(icps[1:], accepted[1:], strict=True)
-        ]
-        first_fit = fit_hand_eye(T_bc, T_kin, info, conf)
-        fit = _hand_eye_anchor(srcs, T_kin, first_fit, o.hand_eye_passes, icp, max_correction, progress)
-        if fit.applied:
-            moves = [B @ fit.D @ invert(A) for A, B in zip(T_bc, T_kin, strict=True)]
-            full = [P @ M[:3, :3].T + M[:3, 3] for P, M in zip(full, moves, strict=True)]
-            T_bc = [B @ fit.D for B in T_kin]
-            corrections = [B @ fit.D @ invert(B) for B in T_kin]
-        else:
-            warnings.warn(f"hand-eye anchor: {fit.note}; placed the model by the mean anchor", stacklevel=2)
-    if (anchor == "mean" or (fit is not None and not fit.applied)) and register_to_model:
-        shift = mean_anchor_shift([c for c, ok in zip(corrections, accepted, strict=True) if ok])
-        full = [P @ shift[:3, :3].T + shift[:3, 3] for P in full]
-        T_bc = [shift @ T for T in T_bc]
-        corrections = [shift @ C for C in corrections]
-    merged = down(np.concatenate(full))
-    cloud = PointCloud(merged, frame="base", meta={"n_views": n, "voxel": voxel, "anchor": anchor})
-    return ReconstructResult(cloud, T_bc, corrections, fit_before, fit_after, accepted, icps, shift, fit)
+    return v
+
+
+def _register_view(
+    i: int, src: np.ndarray, model: np.ndarray, o: ReconstructOptions, icp: IcpOptions
+) -> tuple[np.ndarray, IcpResult, bool, float, float]:
+    """ICP of view ``i``'s registration points ``src`` (base frame) to the model: (correction, ICP result,
+    accepted, fitness before, after). A correction over ``max_correction`` or one that lowers the
+    fitness by more than 0.02 is refused with a warning (identity kept; fitness after = before)."""
+    d_max = o.correspondence_distance
+    d_fit = o.fitness_distance or d_max / 3.0
+    # one KD-tree of the model per view, shared by the normals (computed only where the view overlaps
+    # the model), the correspondence search and eq. 20 before and after
+    tree = PointTree(model)
+    res = linear_icp(src, model, icp, target_tree=tree)
+    fb = _fitness(res.initial_distances, src, np.eye(4), tree, d_fit, d_max)
+    fa = _fitness(res.distances, src, res.T, tree, d_fit, d_max)
+    dt = float(np.linalg.norm(res.T[:3, 3]))
+    dr = rotation_angle(res.T[:3, :3])
+    ok = dt <= o.max_correction[0] and dr <= o.max_correction[1] and fa >= fb - 0.02
+    if ok:
+        return res.T, res, True, fb, fa
+    warnings.warn(
+        f"view {i}: ICP correction {dt * 1e3:.1f} mm / {np.rad2deg(dr):.2f} deg "
+        f"(fitness {fb:.3f} -> {fa:.3f}) rejected; kept the kinematic pose",
+        stacklevel=4,
+    )
+    return np.eye(4), res, False, fb, fb
+
+
+def _place_by_hand_eye(v: _Views, o: ReconstructOptions, progress: Progress | None) -> HandEyeFit:
+    """Step 2 (anchor "hand-eye"): fit one hand-eye correction D to the registered poses, refine it by
+    leave-one-out passes, and re-place every view at ``B_i D`` (when D is identifiable; else warn)."""
+    conf = [1.0] + [
+        r.inlier_fraction if ok and r.inlier_fraction >= MIN_OVERLAP else 0.0
+        for r, ok in zip(v.icps[1:], v.accepted[1:], strict=True)
+    ]
+    first_fit = fit_hand_eye(v.T_bc, v.T_kin, v.info, conf)
+    fit = _hand_eye_anchor(v.srcs, v.T_kin, first_fit, o.hand_eye_passes, o.icp(), o.max_correction, progress)
+    if fit.applied:
+        moves = [B @ fit.D @ invert(A) for A, B in zip(v.T_bc, v.T_kin, strict=True)]
+        v.full = [P @ M[:3, :3].T + M[:3, 3] for P, M in zip(v.full, moves, strict=True)]
+        v.T_bc = [B @ fit.D for B in v.T_kin]
+        v.corrections = [B @ fit.D @ invert(B) for B in v.T_kin]
+    else:
+        warnings.warn(f"hand-eye anchor: {fit.note}; placed the model by the mean anchor", stacklevel=3)
+    return fit
+
+
+def _place_by_mean(v: _Views) -> np.ndarray:
+    """Step 2 (anchor "mean"): remove the mean of the accepted corrections from every view; returns
+    the shift applied."""
+    shift = mean_anchor_shift([c for c, ok in zip(v.corrections, v.accepted, strict=True) if ok])
+    v.full = [P @ shift[:3, :3].T + shift[:3, 3] for P in v.full]
+    v.T_bc = [shift @ T for T in v.T_bc]
+    v.corrections = [shift @ C for C in v.corrections]
+    return shift
 
 
 def _leave_one_out(

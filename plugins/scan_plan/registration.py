@@ -12,31 +12,31 @@ point-to-plane residuals, iteratively re-weighted), and the update applied as an
 ``update="linear"`` applies the paper's matrix M^ of eq. 5 and projects it onto SO(3).
 
 Speed (same result as a plain implementation): the nearest-neighbour search re-queries only the source
-points that may have changed neighbour (:class:`NearestCache`) and runs in Morton order of the source
-points (cache-friendly), target normals are estimated only for the target points that become
-correspondences (:class:`LazyNormals`), and each iteration forms the 6x6 normal equations with one
-(N, 7) matrix product, in row blocks small enough that OpenBLAS stays on one thread. The searches
+points that may have changed neighbour (:class:`~.icp_search.NearestCache`) and runs in Morton order of
+the source points (cache-friendly), target normals are estimated only for the target points that become
+correspondences (:class:`~.icp_search.LazyNormals`), and each iteration forms the 6x6 normal equations
+with one (N, 7) matrix product, in row blocks small enough that OpenBLAS stays on one thread. The searches
 use :class:`~.nearest.PointTree` (pykdtree, OpenMP).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from weldcell.sdk.arrays import col_max, col_min, row_dot
+from weldcell.sdk.arrays import row_dot
 from weldcell.sdk.errors import DataError
 from weldcell.sdk.geometry import is_rigid, orthonormalize
 
-from .denoise import _knn_normals, as_points
+from .cloud_numerics import as_points
+from .icp_search import LazyNormals, NearestCache
 from .nearest import PointTree
 
 ROBUST_KERNELS = (None, "huber", "tukey")
 UPDATES = ("exact", "linear")
-#: below this many query points one thread is faster than starting worker threads
-_THREADED_QUERY = 4000
 #: rows per BLAS call: small enough that OpenBLAS stays on one thread (its idle threads keep spinning
 #: after a threaded call and slow down the KD-tree's query threads on 2 cores)
 _BLAS_ROWS = 4096
@@ -162,26 +162,6 @@ def _rigid_apply(P: np.ndarray, T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _morton_order(P: np.ndarray) -> np.ndarray:
-    """Indices that sort ``P`` along a 30-bit Morton (Z-order) curve over its bounding cube.
-
-    Queries in this order visit the KD-tree's nodes in nearly the same sequence from one point to
-    the next, which keeps them in cache (10-20 % faster searches on unordered clouds).
-    """
-
-    def spread(v: np.ndarray) -> np.ndarray:  # 10 bits -> every third bit
-        v = v.astype(np.uint32)
-        v = (v | (v << 16)) & np.uint32(0x030000FF)
-        v = (v | (v << 8)) & np.uint32(0x0300F00F)
-        v = (v | (v << 4)) & np.uint32(0x030C30C3)
-        return (v | (v << 2)) & np.uint32(0x09249249)
-
-    lo = col_min(P)
-    ext = float((col_max(P) - lo).max())
-    q = ((P - lo) * (1023.0 / max(ext, 1e-300))).astype(np.uint32)
-    return np.argsort(spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2))
-
-
 def _system_rows(src: np.ndarray, nrm: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rows ``[s x n, n | b]`` of eq. 7, stored transposed as one (7, N) array (contiguous writes)."""
     J = np.empty((7, len(src)))
@@ -293,161 +273,6 @@ def _check_transform(T: np.ndarray, what: str) -> np.ndarray:
     return T
 
 
-def _query(tree: PointTree | cKDTree, q: np.ndarray, k: int, bound: float) -> tuple[np.ndarray, np.ndarray]:
-    workers = -1 if len(q) > _THREADED_QUERY else 1  # thread start-up costs more than it saves on few points
-    return tree.query(q, k=k, distance_upper_bound=bound, workers=workers)
-
-
-class NearestCache:
-    """Exact nearest-target look-up for a moving source that re-queries only the points that may have
-    changed neighbour.
-
-    After a k=2 query a source point s with nearest target distances d1 <= d2 keeps the same nearest
-    neighbour while it moves by less than (d2 - d1) / 2 (triangle inequality), so only points that
-    moved further since their last query are searched again; the distance to the kept neighbour is
-    recomputed exactly. Pair queries use the bound ``B = margin * d_max``: a point with no target within
-    B stays without a correspondence within ``d_max`` while it moves by less than ``B - d_max``.
-    The result equals a full nearest-neighbour query every iteration (up to exact ties).
-
-    A k=2 query costs ~1.3 k=1 queries and pays off only if the points then move less than their gaps,
-    so while the motion is large (the first ICP iterations) plain k=1 queries are made; pair queries
-    start once the motion predicted for the next step (ICP converges about geometrically: the last
-    step's motion times its ratio to the step before) falls below twice the typical gap.
-    Searches run in Morton order of the first query's points (:func:`_morton_order`); the results come
-    back in the caller's order. ``query`` must be called with the source points in the same order every
-    time.
-    """
-
-    def __init__(
-        self, tree: PointTree | cKDTree, target: np.ndarray, d_max: float, n_source: int, margin: float = 1.5
-    ):
-        self.tree, self.target, self.d_max = tree, target, float(d_max)
-        self.bound = margin * self.d_max
-        self.idx = np.full(n_source, -1, dtype=np.int64)
-        self.gap = np.full(n_source, -1.0)
-        self.anchor: np.ndarray | None = None
-        self.n_queries = 0
-        self.typical_gap = 0.0  # median gap (m) after pair queries; 0 until the first one
-        self._prev: np.ndarray | None = None
-        self._moves: list[float] = []
-        self._scale = 0.0  # median nearest distance of the last full query (m)
-        self._own_anchor = False  # the anchor array is the caller's until the first partial update
-        self.order: np.ndarray | None = None  # search order (Morton) of the source points
-        self._reordered = False  # False: the search order is the caller's order
-
-    def _step_motion(self, pts: np.ndarray) -> float:
-        """Median motion of the points since the previous call (on ~1000 of them)."""
-        step = max(1, len(pts) // 1024)
-        d = pts[::step] - self._prev[::step]
-        return float(np.sqrt(np.median(row_dot(d, d))))
-
-    def _want_pairs(self) -> bool:
-        if len(self._moves) < 2:
-            return False
-        last, before = self._moves[-1], self._moves[-2]
-        predicted = last * min(1.0, last / max(before, 1e-300))
-        gap = self.typical_gap if self.typical_gap > 0 else 0.15 * self._scale
-        return predicted < 2.0 * gap
-
-    def _full(self, pts: np.ndarray) -> np.ndarray:
-        """A plain k=1 query of all points (in search order) -> distances; sets ``idx``."""
-        if self.order is None:
-            self._reordered = len(pts) > _THREADED_QUERY
-            self.order = _morton_order(pts) if self._reordered else np.arange(len(pts))
-        if self._reordered:
-            d, i = _query(self.tree, pts[self.order], 1, self.d_max)
-            dist = np.empty(len(pts))
-            dist[self.order] = d
-            self.idx[self.order] = np.where(np.isfinite(d), i, -1)
-        else:
-            dist, i = _query(self.tree, pts, 1, self.d_max)
-            self.idx[:] = np.where(np.isfinite(dist), i, -1)
-            d = dist
-        self.n_queries += len(pts)
-        found = d[::8][np.isfinite(d[::8])]  # every 8th point is plenty for a typical distance
-        self._scale = float(np.median(found)) if len(found) else self.d_max
-        return dist
-
-    def query(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(distances, indices) of the nearest target within ``d_max`` (inf / -1 where none)."""
-        if self.anchor is None:  # first call: a plain full query
-            dist = self._full(pts)
-            self.anchor, self._prev, self._own_anchor = pts, pts, False
-            return dist, self.idx.copy()
-        self._moves.append(self._step_motion(pts))
-        self._prev = pts
-        diff = pts - self.anchor
-        moved = row_dot(diff, diff)
-        is_stale = moved >= self.gap * np.abs(self.gap)
-        stale = self.order[is_stale[self.order]] if self._reordered else np.flatnonzero(is_stale)
-        pairs = self._want_pairs()
-        if len(stale) == len(pts) and not pairs:  # everything moved far: a plain full query
-            dist = self._full(pts)
-            self.gap.fill(-1.0)
-            self.anchor, self._own_anchor = pts, False
-            return dist, self.idx.copy()
-        if len(stale):
-            q = pts[stale]
-            self.n_queries += len(q)
-            if pairs:
-                d, i = _query(self.tree, q, 2, self.bound)
-                d1, d2 = d[:, 0], np.minimum(d[:, 1], self.bound)
-                found = np.isfinite(d1)
-                gap = np.where(found, 0.5 * (d2 - np.where(found, d1, 0.0)), self.bound - self.d_max)
-                idx = np.where(found, i[:, 0], -1)
-            else:
-                d1, i1 = _query(self.tree, q, 1, self.d_max)
-                idx = np.where(np.isfinite(d1), i1, -1)
-                gap = np.full(len(q), -1.0)
-            if not self._own_anchor:
-                self.anchor, self._own_anchor = self.anchor.copy(), True
-            self.idx[stale], self.gap[stale], self.anchor[stale] = idx, gap, q
-            if pairs:
-                g = self.gap[:: max(1, len(self.gap) // 1024)]
-                g = g[g >= 0]
-                self.typical_gap = float(np.median(g)) if len(g) else self.typical_gap
-        out = self.idx.copy()
-        diff = pts - np.take(self.target, out, axis=0, mode="clip")  # -1 clips to 0: masked below
-        dist = np.sqrt(row_dot(diff, diff))
-        far = np.flatnonzero((dist > self.d_max) | (out < 0))
-        dist[far], out[far] = np.inf, -1
-        return dist, out
-
-
-class LazyNormals:
-    """Target normals (eq. 9: PCA of the ``k`` nearest target points) estimated on first use.
-
-    ICP needs the normals of the target points that become correspondences only, often a fraction of
-    the target (e.g. the part of a growing model a new view overlaps); each is computed once, with the
-    same neighbours and eigen-solver as :func:`~.denoise.pca_normals`. ``table[j]`` is
-    ``(n_j, n_j . t_j)`` for the points estimated so far.
-    """
-
-    def __init__(self, target: np.ndarray, tree: PointTree | cKDTree, k: int = 20):
-        self.target, self.tree, self.k = target, tree, min(int(k), len(target))
-        self.table = np.empty((len(target), 4))
-        self.known = np.zeros(len(target), dtype=bool)
-        self.n_estimated = 0
-
-    def ensure(self, j: np.ndarray) -> None:
-        need = np.zeros(len(self.target), dtype=bool)
-        need[j] = True
-        need &= ~self.known
-        miss = np.flatnonzero(need)
-        if len(miss) > _THREADED_QUERY:
-            n = _knn_normals(self.target, self.tree, self.k, miss)
-        elif len(miss):  # the same estimate without starting query threads for a few points
-            _, nb = self.tree.query(self.target[miss], k=max(self.k, 3), workers=1)
-            Q = self.target[nb]
-            D = Q - Q.mean(axis=1, keepdims=True)
-            n = np.linalg.eigh(np.einsum("nki,nkj->nij", D, D))[1][:, :, 0]
-        if len(miss):
-            self.table[miss, :3] = n
-            self.table[miss, 3] = np.einsum("ij,ij->i", n, self.target[miss])
-            self.known[miss] = True
-            self.n_estimated += len(miss)
-
-
 def _prior_terms(
     prior: tuple[float, float], T: np.ndarray, init_inv: np.ndarray, res: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -491,103 +316,150 @@ def linear_icp(
     S = np.ascontiguousarray(as_points(source, "ICP source", min_points=3))
     Tg = as_points(target, "ICP target", min_points=3)
     o = options
-    d_max, tolerance, prior = o.max_correspondence_distance, o.tolerance, o.prior
     T = _check_transform(init, "ICP initial transform").copy()
-    init_inv = None if prior is None else np.linalg.inv(T)
+    init_inv = None if o.prior is None else np.linalg.inv(T)
+    tree, planes = _target_planes(Tg, o, target_normals, target_tree)
+    cache = NearestCache(tree, Tg, o.max_correspondence_distance, len(S))
+    history: list[dict] = []
+    converged = False
+    prev: _Pairs | None = None
+    pairs = dist0 = None
+    info = np.zeros((6, 6))
+    for it in range(o.max_iterations + 1):
+        pairs = _pairs_at(S, T, cache, planes, len(Tg))
+        dist0 = pairs.dist if dist0 is None else dist0
+        # as Open3D: changes of the fitness (a ratio) and of the inlier RMSE (m) both below tolerance
+        if prev is not None and pairs.settled_since(prev, o.tolerance):
+            converged = True
+        if converged or it == o.max_iterations or pairs.n_in < 6:
+            break
+        x, info = _step(pairs, T, o, init_inv)
+        T = _step_matrix(x, o.update) @ T
+        if o.update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
+            T[:3, :3] = orthonormalize(T[:3, :3])
+        d_rot, d_tr = float(np.linalg.norm(x[:3])), float(np.linalg.norm(x[3:]))
+        history.append(pairs.record(it + 1, d_rot, d_tr))
+        prev = pairs
+        if d_rot < o.tolerance and d_tr < o.tolerance:
+            converged = True
+    if pairs is None or pairs.fit == 0.0:
+        raise DataError(
+            f"ICP found no correspondences within {o.max_correspondence_distance:g} m",
+            "check the initial pose (kinematics + hand-eye) or raise max_correspondence_distance",
+        )
+    T[:3, :3] = orthonormalize(T[:3, :3])
+    return IcpResult(
+        T=T,
+        fitness=pairs.fit,
+        inlier_rmse=pairs.rmse,
+        iterations=len(history),
+        converged=converged,
+        inlier_fraction=pairs.frac,
+        plane_rmse=pairs.prmse,
+        history=history,
+        distances=pairs.dist,
+        initial_distances=dist0,
+        information=info,
+    )
+
+
+def _target_planes(
+    Tg: np.ndarray,
+    o: IcpOptions,
+    target_normals: np.ndarray | None,
+    target_tree: PointTree | cKDTree | None,
+) -> tuple[PointTree | cKDTree, Callable[[np.ndarray], np.ndarray]]:
+    """The target's KD-tree and ``planes(j)``: rows ``(n_j, n_j . t_j)`` of target points ``j``, from
+    the given normals or estimated on first use (:class:`LazyNormals`)."""
     if target_tree is not None and target_tree.n != len(Tg):
         raise DataError(
             f"target_tree holds {target_tree.n} points, the target {len(Tg)}",
             "pass a PointTree built on this target, or target_tree=None",
         )
     tree = target_tree if target_tree is not None else PointTree(Tg)
-    lazy = None
     if target_normals is None:
         lazy = LazyNormals(Tg, tree, o.normal_k)
-        table = lazy.table
-    else:
-        Nt = np.asarray(target_normals, dtype=float)
-        if Nt.shape != Tg.shape or not np.all(np.isfinite(Nt)):
-            raise DataError(
-                f"target normals must be a finite {Tg.shape} array, got shape {Nt.shape}",
-                "pass one normal per target point, or target_normals=None to estimate them",
-            )
-        table = _normal_table(Tg, Nt)  # (n, n . t) per target point: one gather per iteration
-    cache = NearestCache(tree, Tg, d_max, len(S))
-    n_target, n_source = len(Tg), len(S)
 
-    history: list[dict] = []
-    converged = False
-    prev: tuple[float, float] | None = None
-    last = None
-    dist0 = dist = None
-    info = np.zeros((6, 6))
-    for it in range(o.max_iterations + 1):
-        Ss = _rigid_apply(S, T)
-        dist, idx = cache.query(Ss)
-        dist0 = dist if dist0 is None else dist0
-        if (idx >= 0).all():
-            n_in, s_in, j, d_in = n_source, Ss, idx, dist
-        else:
-            sel = np.flatnonzero(idx >= 0)
-            n_in, s_in, j, d_in = len(sel), np.take(Ss, sel, axis=0), np.take(idx, sel), np.take(dist, sel)
-        fit, frac = n_in / n_target, n_in / n_source
-        rmse = float(np.sqrt(np.einsum("i,i", d_in, d_in) / n_in)) if n_in else 0.0
-        prmse = 0.0
-        if n_in:
-            if lazy is not None:
-                lazy.ensure(j)
-            nc = np.take(table, j, axis=0)
-            res = row_dot(s_in, nc)
-            res -= nc[:, 3]  # (s - t) . n, the point-to-plane residual
-            prmse = float(np.sqrt(np.einsum("i,i", res, res) / n_in))
-        last = (fit, frac, rmse, prmse)
-        if prev is not None:
-            # as Open3D: changes of the fitness (a ratio) and of the inlier RMSE (m) both below tolerance
-            if abs(fit - prev[0]) < tolerance and abs(rmse - prev[1]) < tolerance:
-                converged = True
-        if converged or it == o.max_iterations or n_in < 6:
-            break
-        w = _robust_weights(res, o.robust, o.robust_scale) if o.robust else None
-        pr = _prior_terms(prior, T, init_inv, res) if prior is not None else None
-        G = _normal_matrix(_system_rows(s_in, nc[:, :3], -res), w)
-        info = G[:6, :6] / n_in
-        x = _solve(None, None, 1e-10, pr, G)
-        T = _step_matrix(x, o.update) @ T
-        if o.update == "linear" or it % 8 == 7:  # exact steps are rotations: re-orthonormalise now and then
-            T[:3, :3] = orthonormalize(T[:3, :3])
-        d_rot, d_tr = float(np.linalg.norm(x[:3])), float(np.linalg.norm(x[3:]))
-        history.append(
-            dict(
-                iteration=it + 1,
-                fitness=fit,
-                inlier_fraction=frac,
-                inlier_rmse=rmse,
-                plane_rmse=prmse,
-                n_inliers=n_in,
-                step_rotation=d_rot,
-                step_translation=d_tr,
-            )
-        )
-        prev = (fit, rmse)
-        if d_rot < tolerance and d_tr < tolerance:
-            converged = True
-    if last is None or last[0] == 0.0:
+        def planes(j: np.ndarray) -> np.ndarray:
+            lazy.ensure(j)
+            return np.take(lazy.table, j, axis=0)
+
+        return tree, planes
+    Nt = np.asarray(target_normals, dtype=float)
+    if Nt.shape != Tg.shape or not np.all(np.isfinite(Nt)):
         raise DataError(
-            f"ICP found no correspondences within {d_max:g} m",
-            "check the initial pose (kinematics + hand-eye) or raise max_correspondence_distance",
+            f"target normals must be a finite {Tg.shape} array, got shape {Nt.shape}",
+            "pass one normal per target point, or target_normals=None to estimate them",
         )
-    fit, frac, rmse, prmse = last
-    T[:3, :3] = orthonormalize(T[:3, :3])
-    return IcpResult(
-        T=T,
-        fitness=fit,
-        inlier_rmse=rmse,
-        iterations=len(history),
-        converged=converged,
-        inlier_fraction=frac,
-        plane_rmse=prmse,
-        history=history,
-        distances=dist,
-        initial_distances=dist0,
-        information=info,
-    )
+    table = _normal_table(Tg, Nt)  # (n, n . t) per target point: one gather per iteration
+    return tree, lambda j: np.take(table, j, axis=0)
+
+
+@dataclass
+class _Pairs:
+    """One ICP iteration's correspondences: the source points with a target within the distance
+    (``s_in``), their target planes ``nc`` (n, n . t) and point-to-plane residuals ``res``, every source
+    point's nearest distance ``dist``, and eq. 20's fitness, the inlier fraction and RMSEs."""
+
+    n_in: int
+    s_in: np.ndarray
+    nc: np.ndarray | None
+    res: np.ndarray | None
+    dist: np.ndarray
+    fit: float
+    frac: float
+    rmse: float
+    prmse: float
+
+    def settled_since(self, prev: _Pairs, tolerance: float) -> bool:
+        return abs(self.fit - prev.fit) < tolerance and abs(self.rmse - prev.rmse) < tolerance
+
+    def record(self, iteration: int, d_rot: float, d_tr: float) -> dict:
+        return dict(
+            iteration=iteration,
+            fitness=self.fit,
+            inlier_fraction=self.frac,
+            inlier_rmse=self.rmse,
+            plane_rmse=self.prmse,
+            n_inliers=self.n_in,
+            step_rotation=d_rot,
+            step_translation=d_tr,
+        )
+
+
+def _pairs_at(
+    S: np.ndarray,
+    T: np.ndarray,
+    cache: NearestCache,
+    planes: Callable[[np.ndarray], np.ndarray],
+    n_target: int,
+) -> _Pairs:
+    """The correspondences of source ``S`` moved by ``T`` (eqs. 2-3) and their residuals."""
+    Ss = _rigid_apply(S, T)
+    dist, idx = cache.query(Ss)
+    n_source = len(S)
+    if (idx >= 0).all():
+        n_in, s_in, j, d_in = n_source, Ss, idx, dist
+    else:
+        sel = np.flatnonzero(idx >= 0)
+        n_in, s_in, j, d_in = len(sel), np.take(Ss, sel, axis=0), np.take(idx, sel), np.take(dist, sel)
+    rmse = float(np.sqrt(np.einsum("i,i", d_in, d_in) / n_in)) if n_in else 0.0
+    nc = res = None
+    prmse = 0.0
+    if n_in:
+        nc = planes(j)
+        res = row_dot(s_in, nc)
+        res -= nc[:, 3]  # (s - t) . n, the point-to-plane residual
+        prmse = float(np.sqrt(np.einsum("i,i", res, res) / n_in))
+    return _Pairs(n_in, s_in, nc, res, dist, n_in / n_target, n_in / n_source, rmse, prmse)
+
+
+def _step(
+    pairs: _Pairs, T: np.ndarray, o: IcpOptions, init_inv: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """One linearised solve (eqs. 4-8, robust weights and the pose prior when asked): the step x =
+    (alpha, beta, gamma, px, py, pz) and the information (6x6 normal matrix per pair)."""
+    w = _robust_weights(pairs.res, o.robust, o.robust_scale) if o.robust else None
+    pr = _prior_terms(o.prior, T, init_inv, pairs.res) if o.prior is not None else None
+    G = _normal_matrix(_system_rows(pairs.s_in, pairs.nc[:, :3], -pairs.res), w)
+    return _solve(None, None, 1e-10, pr, G), G[:6, :6] / pairs.n_in

@@ -106,12 +106,14 @@ class BilateralSettings(Settings):
     )
 
 
-#: ``PointCloud.meta`` key of the :class:`~weldcell.plugins.scan_plan.cloud_numerics.NeighbourTable` the
-#: denoiser leaves for the seam stage (one shared neighbour search; used only for that very points array)
-NEIGHBOURS_META = "scan_plan.neighbours"
-
-
 class BilateralDenoiser:
+    """The bilateral filter (eqs. 9-10) after an optional crop and voxel down-sampling.
+
+    Returns the input cloud's scan (frame, viewpoints, meta) with the filtered points and their normals
+    (:meth:`PointCloud.with_points`); after one pass the output also carries its neighbour table
+    (:attr:`PointCloud.neighbours`), which the seam stage reuses instead of searching again.
+    """
+
     #: neighbours per point of the shared table (the seam stage's ``k_max``)
     k_table = 32
     #: points sampled for the spacing estimate of a big raw cloud (the voxel size only)
@@ -139,8 +141,6 @@ class BilateralDenoiser:
             sp = mean_spacing(P, sample=self.spacing_sample)
             P = voxel_downsample(P, voxel_size=max(self.s.voxel_factor * sp, self.s.min_voxel))
         normals = None
-        meta = dict(cloud.meta)
-        meta.pop(NEIGHBOURS_META, None)
         if self.s.iterations > 0:
             tree = cKDTree(P)
             radius = self.s.radius or 3.0 * mean_spacing(P, sample=self.spacing_sample, tree=tree)
@@ -157,14 +157,13 @@ class BilateralDenoiser:
                 neighbours=table,
             )
             if self.s.iterations == 1:
-                out = PointCloud(P, normals=normals, frame=cloud.frame, meta=meta)
-                meta[NEIGHBOURS_META] = table.moved_to(out.points)
-                return out
-        return PointCloud(P, normals=normals, frame=cloud.frame, meta=meta)
+                out = cloud.with_points(P, normals=normals)
+                return out.with_neighbours(table.moved_to(out.points))
+        return cloud.with_points(P, normals=normals)
 
 
 def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
-    """The cloud's normals flipped toward a camera in ``meta["viewpoints"]`` that saw the point (else None:
+    """The cloud's normals flipped toward a camera of ``cloud.viewpoints`` that saw the point (else None:
     the seam extractor then orients them itself).
 
     Each normal faces the nearest camera, as long as that camera can see the point
@@ -172,10 +171,9 @@ def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
     the surface; such points face the camera that sees them most squarely among those that can see
     them, and points no camera sees keep the nearest camera.
     """
-    views = cloud.meta.get("viewpoints")
-    if cloud.normals is None or views is None or len(views) == 0:
+    V = cloud.viewpoints
+    if cloud.normals is None or V is None or len(V) == 0:
         return None
-    V = np.asarray(views, dtype=float).reshape(-1, 3)
     P, N = cloud.points, cloud.normals
     d2 = ((P[:, None, :] - V[None, :, :]) ** 2).sum(axis=2)
     nearest = np.argmin(d2, axis=1)
@@ -270,8 +268,6 @@ class EdgeSeamExtractor:
 
         check_cloud(cloud, "cloud for seam extraction", min_points=self.s.m + 1)
         normals = oriented_normals(cloud)
-        table = cloud.meta.get(NEIGHBOURS_META)
-        shared = table is not None and table.matches(cloud.points)
         return extract_seams(
             cloud.points,
             normals,
@@ -285,8 +281,8 @@ class EdgeSeamExtractor:
             min_seam_length=self.s.min_seam_length,
             spacing=self.s.spacing,
             wall_radius=self.s.wall_radius,
-            neighbours=table if shared else None,
-            viewpoints=cloud.meta.get("viewpoints"),
+            neighbours=cloud.neighbours,
+            viewpoints=cloud.viewpoints,
         )
 
 

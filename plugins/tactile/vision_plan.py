@@ -16,6 +16,7 @@ from weldcell.hal.sim import world_of
 from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, JobError
 from weldcell.sdk.geometry import invert, transform_points
+from weldcell.sdk.stages import denoised_scan
 from weldcell.sdk.weldpath import WeldPath
 
 from .paths import Polyline, left_normal
@@ -104,7 +105,8 @@ def scan_for_seam(
             ctx.state.add_capture(rec)
     with ctx.step(f"{prefix}seams (denoise + edge intensity)"):
         view = transform_points(T_base_camera, np.zeros((1, 3)))
-        clean = ctx.stage("denoise")(PointCloud(P, frame="base", meta={"viewpoints": view}))
+        scan = PointCloud(P, frame="base", viewpoints=view)
+        clean = denoised_scan(scan, ctx.stage("denoise")(scan))
         extraction = ctx.stage("seam")(clean)
     candidates = []
     for seam in extraction.seams:

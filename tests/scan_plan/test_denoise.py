@@ -206,6 +206,8 @@ def test_neighbour_table_follows_moved_points_and_sampled_spacing_is_close():
     t2 = table.moved_to(moved)
     fin = np.isfinite(table.dist)
     assert np.allclose(t2.dist[fin], np.linalg.norm(moved[table.idx] - moved[:, None], axis=2)[fin])
-    assert t2.matches(moved) and not t2.matches(moved.copy())
+    assert t2.matches(moved) and t2.matches(moved.copy())  # the same points, whichever array holds them
+    moved[0] += 1e-4  # changed in place after the table was built: the table kept its own copy
+    assert not t2.matches(moved) and not t2.matches(moved[1:])
     exact = mean_spacing(P)
     assert abs(mean_spacing(P, sample=500) - exact) < 0.05 * exact

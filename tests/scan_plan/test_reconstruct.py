@@ -55,6 +55,7 @@ def test_merge_views_eq1_puts_points_in_base_frame():
         [transform_points(T, s.cloud.points) for s, T in zip(scans, truth, strict=True)]
     )
     assert np.allclose(merged.points, expected, atol=1e-12)
+    np.testing.assert_allclose(merged.viewpoints, [T[:3, 3] for T in truth], atol=1e-12)
     on_surface = transform_points(invert(T_BASE_PART), merged.points)
     assert np.percentile(np.abs(np.min(np.abs(on_surface[:, [2]]), axis=1)), 40) < 0.001
 
@@ -102,6 +103,9 @@ def test_mean_anchor_places_the_model_by_all_views_not_the_first():
     # the corrections now average to the identity
     C = np.asarray(mean.corrections)
     assert np.abs(C[:, :3, 3].mean(axis=0)).max() < 1e-9
+    # the model says where its cameras were (the placed poses), for the seam stage's normals
+    for res in (first, mean):
+        np.testing.assert_allclose(res.cloud.viewpoints, [T[:3, 3] for T in res.T_base_camera], atol=1e-12)
 
 
 def test_unknown_anchor_is_refused():

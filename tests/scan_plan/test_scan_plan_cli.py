@@ -271,6 +271,11 @@ def test_reconstruct_merges_posed_scans_and_icp_improves_fitness(tmp_path):
 
     d, _ = cKDTree(truth).query(model.points)
     assert np.percentile(d, 95) < 0.0015  # the merged model lies on the true surface
+    # the model file says where the cameras were (the registered poses), and `weldcell seam` reads it back
+    cams = [np.asarray(v["T_base_camera"])[:3, 3] for v in views]
+    np.testing.assert_allclose(model.viewpoints, cams, atol=1e-12)
+    seam = cli("seam", out, "-o", tmp_path / "path.json")
+    assert "viewpoints      3 (stored in the file)" in seam.output, seam.output
 
 
 def test_reconstruct_reads_millimetre_scans_and_a_hand_eye_file(tmp_path):
