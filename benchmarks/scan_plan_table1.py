@@ -141,7 +141,7 @@ def run_case(
         ReconstructOptions(voxel=0.0015, max_correspondence_distance=0.005, anchor=anchor, prior=prior),
     )
     t1 = time.perf_counter()
-    rec.cloud.meta["viewpoints"] = viewpoints
+    rec.cloud.viewpoints = np.asarray(viewpoints, dtype=float)
     clean = BilateralDenoiser(BilateralSettings())(rec.cloud)
     ex = EdgeSeamExtractor(EdgeSeamSettings())(clean)
     path = TorchPathPlanner(TorchPathSettings(standoff=0.0, travel_angle=0.0))(ex.seams)

@@ -112,7 +112,7 @@ def run(placement: str, preset: str, distance: float, repeats: int, seed: int) -
         P = img.to_points()  # depth image -> camera-frame cloud
         n_capture = len(P)
         P = roi_crop(transform_points(T_wc, P), T)  # eq. 1 (the camera pose is exact here) + ROI
-        cloud = PointCloud(P, frame="base", meta={"viewpoints": [T_wc[:3, 3].tolist()]})
+        cloud = PointCloud(P, frame="base", viewpoints=[T_wc[:3, 3]])
         t1 = time.perf_counter()
         clean = denoise(cloud)
         ex = seam_stage(clean)
