@@ -21,7 +21,7 @@ import click
 import numpy as np
 from pydantic import ValidationError
 from weldcell.sdk.artifacts import write_json, write_text
-from weldcell.sdk.cloud import UNIT_SCALE, PointCloud, write_cloud
+from weldcell.sdk.cloud import PointCloud, write_cloud
 from weldcell.sdk.errors import DataError, UsageError
 from weldcell.sdk.geometry import T_from_rpy, rotation_angle
 from weldcell.sdk.units import parse_quantity
@@ -268,8 +268,6 @@ def _read_seam_cloud(cloud: Path, units: str, frame: str, viewpoint: str | None)
     """The cloud in metres without invalid points, and how many were dropped; ``--viewpoint`` replaces
     the viewpoints the file stored (:func:`weldcell.sdk.cloud.write_cloud` keeps them in its header)."""
     pc, dropped = read_input_cloud(cloud, units, frame)
-    if pc.viewpoints is not None and units != "m":  # stored in the file's units, as its points
-        pc = pc.with_viewpoints(pc.viewpoints * UNIT_SCALE[units])
     if viewpoint is not None:
         pc = pc.with_viewpoints([parse_floats(viewpoint, 3, ("length",) * 3, "--viewpoint")])
     click.echo(

@@ -20,7 +20,8 @@ SCANS_SCHEMA = "weldcell/posed-scans@1"
 
 
 def read_input_cloud(path: Path, units: str, frame: str) -> tuple[PointCloud, int]:
-    """Read a PLY/PCD cloud in ``units``; returns it in metres and how many invalid points were dropped.
+    """Read a PLY/PCD cloud in ``units``; returns it (and the viewpoints it stored) in metres and how many
+    invalid points were dropped.
 
     NaN/inf points (and points at exactly the origin, the invalid pixels of a depth camera) are dropped;
     an empty cloud, a cloud with no valid point, or one whose size does not fit ``units`` is refused.
@@ -42,6 +43,8 @@ def read_input_cloud(path: Path, units: str, frame: str) -> tuple[PointCloud, in
         )
     check_units(cloud, units, what=str(path))
     cloud.points = cloud.points * UNIT_SCALE[units]
+    if cloud.viewpoints is not None:  # stored in the file's units, as its points
+        cloud.viewpoints = cloud.viewpoints * UNIT_SCALE[units]
     cloud.meta["source"] = str(path)
     return cloud, len(raw) - len(cloud)
 

@@ -10,6 +10,7 @@ import pytest
 from weldcell.plugins.scan_plan import seams as seams_pkg
 from weldcell.plugins.scan_plan.cloud_numerics import knn_table
 from weldcell.plugins.scan_plan.cloud_pipeline import plan_on_cloud
+from weldcell.plugins.scan_plan.scans_io import read_input_cloud
 from weldcell.plugins.scan_plan.stages import (
     BilateralDenoiser,
     BilateralSettings,
@@ -156,6 +157,8 @@ def test_cloud_files_keep_the_viewpoints_and_stay_readable(tmp_path, scan, name,
     mm = f.with_name("mm" + f.suffix)
     write_cloud(mm, PointCloud(scan.points[:200] * 1000, viewpoints=EYES * 1000), binary=binary)
     np.testing.assert_allclose(read_cloud(mm, units="mm").viewpoints, EYES, atol=1e-12)
+    seam_input, _ = read_input_cloud(mm, "mm", "base")  # what `weldcell seam --units mm` reads
+    np.testing.assert_allclose(seam_input.viewpoints, EYES, atol=1e-12)
     assert read_cloud(write_cloud(tmp_path / ("none" + f.suffix), PointCloud(scan.points))).viewpoints is None
 
 
