@@ -124,6 +124,8 @@ class SimRobot(Robot):
 class SimDepthCamera(DepthCamera):
     """A ray-cast depth camera with a real camera's resolution, range and noise (see camera presets)."""
 
+    # parameters: the world, the preset and the mount, then one keyword per field of the camera.sim
+    # device settings (plugins/sim/settings.py), each with its default
     def __init__(
         self,
         world: SimWorld,

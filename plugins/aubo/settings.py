@@ -19,7 +19,7 @@ class AuboSettings(RobotMotionSettings):
         "password (unset: the controller's factory default)",
     )
     robot_name: str = Field("", description="robot name on the controller (e.g. 'rob1'); empty: the first")
-    model: str = Field("aubo-i5", description="kinematic model for the safety gate (weldcell.hal.sim)")
+    model: str = Field("aubo-i5", description="kinematic model for the safety gate (weldcell.hal.kinematics)")
     request_timeout: Duration = Field(2.0, gt=0, description="timeout of one RPC request [s]")
     motion_timeout: Duration = Field(120.0, gt=0, description="longest wait for one motion to finish [s]")
     poll_period: Duration = Field(0.01, gt=0, description="period of the motion-progress polling [s]")

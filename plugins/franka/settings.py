@@ -11,7 +11,9 @@ class FrankaSettings(RobotMotionSettings):
     """``robot.franka``: a Franka Emika Panda / FR3 through franky (libfranka, FCI)."""
 
     host: str = Field("172.16.0.2", description="FCI address of the robot's control unit")
-    model: str = Field("franka-panda", description="kinematic model for the safety gate (weldcell.hal.sim)")
+    model: str = Field(
+        "franka-panda", description="kinematic model for the safety gate (weldcell.hal.kinematics)"
+    )
     relative_dynamics_factor: float = Field(
         1.0, gt=0, le=1, description="global franky dynamics factor (multiplies every motion's)"
     )

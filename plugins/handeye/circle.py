@@ -85,6 +85,7 @@ def _refine_circle(xy: np.ndarray, c0: np.ndarray, r0: float, fix_radius: float 
 
 
 # parameters: the paper's RANSAC circle settings (R, e_d, e_r, k_max, ...), each a documented keyword
+# (callers pass them as one settings mapping: handeye.flange's ``circle`` settings)
 def ransac_circle(
     points: np.ndarray,
     radius: float = PAPER_RADIUS,
@@ -109,42 +110,14 @@ def ransac_circle(
             f"flange face has {len(P)} points (or NaNs); cannot fit a circle",
             "check the segmentation (crop box, cluster size) and that the flange faces the camera",
         )
-    mu, basis = plane_basis(P)
-    for _ in range(3):  # robust plane: drop points off the face (rim wall, burrs) and refit
-        d = (P - mu) @ basis[2]
-        near = np.abs(d) <= max(3.0 * 1.4826 * float(np.median(np.abs(d))), 1e-5)
-        if near.sum() < 10 or near.all():
-            break
-        mu, basis = plane_basis(P[near])
+    mu, basis = _face_plane(P)
     xy = (P - mu) @ basis[:2].T
     cand_idx = np.flatnonzero(boundary_mask(xy)) if use_boundary else np.arange(len(P))
     if len(cand_idx) < 3:
         cand_idx = np.arange(len(P))
     C = xy[cand_idx]
-    rng = np.random.default_rng(rng)
-    m = len(C)
-    s = np.stack([rng.integers(0, m, k_max) for _ in range(3)], axis=1)
-    centers, radii = _circumcircles(C[s[:, 0]], C[s[:, 1]], C[s[:, 2]])
-    ok = np.isfinite(radii) & (np.abs(radii - radius) <= e_r)  # model check before verification
-    centers, radii = centers[ok], radii[ok]
-    if len(centers) == 0:
-        raise DataError(
-            f"no 3-point circle with radius {radius * 1e3:.2f} ± {e_r * 1e3:.2f} mm in {k_max} samples",
-            "check the flange radius setting (R) and units of the cloud; raise k_max for sparse rims",
-        )
-    best_count, best_i, best_rms = -1, -1, np.inf
-    chunk = max(1, 4_000_000 // max(m, 1))
-    for j in range(0, len(centers), chunk):
-        dist = np.abs(
-            np.linalg.norm(C[None] - centers[j : j + chunk, None], axis=2) - radii[j : j + chunk, None]
-        )
-        inl = dist <= e_d
-        cnt = inl.sum(1)
-        rms = np.sqrt(np.where(inl, dist**2, 0).sum(1) / np.maximum(cnt, 1))
-        order = np.lexsort((rms, -cnt))
-        i = order[0]
-        if cnt[i] > best_count or (cnt[i] == best_count and rms[i] < best_rms):
-            best_count, best_i, best_rms = int(cnt[i]), j + int(i), float(rms[i])
+    centers, radii = _hypotheses(C, radius, e_r, k_max, np.random.default_rng(rng))
+    best_count, best_i = _most_supported(C, centers, radii, e_d)
     if best_count < min_inliers:
         raise DataError(
             f"best circle of radius ~{radius * 1e3:.1f} mm has only {best_count} supporting points",
@@ -153,12 +126,7 @@ def ransac_circle(
     c2, r = centers[best_i], float(radii[best_i])
     inl = np.abs(np.linalg.norm(C - c2, axis=1) - r) <= e_d
     if refine:
-        for _ in range(3):
-            c2, r = _refine_circle(C[inl], c2, r, radius if fix_radius else None)
-            new = np.abs(np.linalg.norm(C - c2, axis=1) - r) <= e_d
-            if np.array_equal(new, inl) or new.sum() < min_inliers:
-                break
-            inl = new
+        c2, r, inl = _refined(C, c2, r, inl, e_d, radius if fix_radius else None, min_inliers)
     d = np.abs(np.linalg.norm(C[inl] - c2, axis=1) - r)
     center = mu + c2[0] * basis[0] + c2[1] * basis[1]  # on the face plane
     return CircleFit(
@@ -167,7 +135,73 @@ def ransac_circle(
         radius=r,
         inliers=cand_idx[inl],
         rms=float(np.sqrt(np.mean(d**2))) if len(d) else float("nan"),
-        n_boundary=int(m),
+        n_boundary=int(len(C)),
         n_hypotheses=int(len(centers)),
         stats={"support": int(inl.sum()), "plane_rms": float(np.std((P - mu) @ basis[2]))},
     )
+
+
+def _face_plane(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`plane_basis` of the face, robustly: points off the face (rim wall, burrs) dropped, refit."""
+    mu, basis = plane_basis(P)
+    for _ in range(3):
+        d = (P - mu) @ basis[2]
+        near = np.abs(d) <= max(3.0 * 1.4826 * float(np.median(np.abs(d))), 1e-5)
+        if near.sum() < 10 or near.all():
+            break
+        mu, basis = plane_basis(P[near])
+    return mu, basis
+
+
+def _hypotheses(
+    C: np.ndarray, radius: float, e_r: float, k_max: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Circles through ``k_max`` random point triples of ``C`` that pass the paper's model check
+    (radius within ``radius ± e_r``), before any verification."""
+    m = len(C)
+    s = np.stack([rng.integers(0, m, k_max) for _ in range(3)], axis=1)
+    centers, radii = _circumcircles(C[s[:, 0]], C[s[:, 1]], C[s[:, 2]])
+    ok = np.isfinite(radii) & (np.abs(radii - radius) <= e_r)
+    if not ok.any():
+        raise DataError(
+            f"no 3-point circle with radius {radius * 1e3:.2f} ± {e_r * 1e3:.2f} mm in {k_max} samples",
+            "check the flange radius setting (R) and units of the cloud; raise k_max for sparse rims",
+        )
+    return centers[ok], radii[ok]
+
+
+def _most_supported(C: np.ndarray, centers: np.ndarray, radii: np.ndarray, e_d: float) -> tuple[int, int]:
+    """(inlier count, index) of the circle with most points within ``e_d`` (then lowest inlier rms),
+    evaluated in chunks of about 4 M point-circle distances."""
+    best_count, best_i, best_rms = -1, -1, np.inf
+    chunk = max(1, 4_000_000 // max(len(C), 1))
+    for j in range(0, len(centers), chunk):
+        dist = np.abs(
+            np.linalg.norm(C[None] - centers[j : j + chunk, None], axis=2) - radii[j : j + chunk, None]
+        )
+        inl = dist <= e_d
+        cnt = inl.sum(1)
+        rms = np.sqrt(np.where(inl, dist**2, 0).sum(1) / np.maximum(cnt, 1))
+        i = np.lexsort((rms, -cnt))[0]
+        if cnt[i] > best_count or (cnt[i] == best_count and rms[i] < best_rms):
+            best_count, best_i, best_rms = int(cnt[i]), j + int(i), float(rms[i])
+    return best_count, best_i
+
+
+def _refined(
+    C: np.ndarray,
+    c2: np.ndarray,
+    r: float,
+    inl: np.ndarray,
+    e_d: float,
+    fix_radius: float | None,
+    min_inliers: int,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Geometric least-squares circle on the inliers, re-selected up to three times."""
+    for _ in range(3):
+        c2, r = _refine_circle(C[inl], c2, r, fix_radius)
+        new = np.abs(np.linalg.norm(C - c2, axis=1) - r) <= e_d
+        if np.array_equal(new, inl) or new.sum() < min_inliers:
+            break
+        inl = new
+    return c2, r, inl

@@ -9,13 +9,13 @@ skipped and listed. Exit codes are those of :mod:`weldcell.sdk.cli`.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import click
-import numpy as np
 from weldcell.sdk.datafile import check_keys, expect_object, read_json_file, read_toml_file
 from weldcell.sdk.errors import DataError, UsageError
+
+from .cli_steps import measure_scans  # noqa: F401  (public here before the steps had their module)
 
 LAYOUTS = (
     "auto",
@@ -210,67 +210,6 @@ def _read_settings_file(path: Path) -> dict:
     return values
 
 
-def measure_scans(ss, stage, need_pose: bool) -> list[str]:
-    """Flange centres (and poses) of samples that have a scan but no ``p_cam``; samples whose scan has
-    no flange get ``p_cam = None`` and are dropped. Returns one note per dropped scan."""
-    from weldcell.sdk.cloud import read_cloud
-
-    notes, keep = [], []
-    for i, smp in enumerate(ss.samples):
-        needs = smp.cloud is not None and (smp.p_cam is None or (need_pose and smp.T_cam_target is None))
-        if not needs:
-            keep.append(smp)
-            continue
-        units = smp.meta.get("cloud_units", "m")
-        name = Path(smp.cloud).name if isinstance(smp.cloud, str | Path) else f"#{i}"
-        try:
-            if isinstance(smp.cloud, str | Path):
-                pts = read_cloud(smp.cloud, units=units, frame="camera").points
-            else:
-                pts = np.asarray(smp.cloud, float)
-            m = stage.measure(pts, seed=i)
-        except DataError as e:
-            notes.append(f"scan {i} ({name}): {e.message}")
-            continue
-        smp.p_cam = m.p_cam
-        smp.meta["flange"] = {"radius_mm": round(m.report["radius"] * 1e3, 3), "support": m.report["support"]}
-        if need_pose:
-            smp.T_cam_target = stage.measure_pose(m)
-        keep.append(smp)
-    if notes and len(keep) < 4:
-        raise DataError(
-            f"no flange found in {len(notes)} of {len(ss.samples)} scans ({notes[0]}); {len(keep)} usable, "
-            "at least 4 needed",
-            "check the scans show the flange face (and their units, --units), the flange size (--flange-d1) "
-            "or the pass-through box (--settings)",
-        )
-    ss.samples = keep
-    return notes
-
-
-def _feature(value: str | None, option: str = "--feature", named: str = "tcp"):
-    """A feature option: ``named`` ("tcp" or "origin"), "estimate", or x,y,z in mm (returned in m)."""
-    if value is None or value in (named, "estimate"):
-        return value
-    try:
-        xyz = [float(v) * 1e-3 for v in value.split(",")]
-    except ValueError:
-        xyz = []
-    if len(xyz) != 3:
-        raise UsageError(
-            f"{option} '{value}' is not {named}, estimate or x,y,z", f"e.g. {option} 0,0,12.5 (mm)"
-        )
-    return xyz
-
-
-def _cli_fix(e: DataError) -> DataError:
-    """The library's fixes speak Python; say the command-line option instead."""
-    fix = (e.fix or "").replace("pass allow_coplanar=True", "pass --allow-coplanar")
-    fix = fix.replace("declare units 'mm'", "pass --units mm")
-    fix = fix.replace("declare units 'm'", "pass --units m")
-    return DataError(e.message, fix)
-
-
 @click.group("calibrate")
 def calibrate_group() -> None:
     """Calibrate a cell from recorded data (hand-eye)."""
@@ -409,150 +348,28 @@ def hand_eye(
     quiet: bool,
 ) -> None:
     """Hand-eye calibration of DATA_DIR; writes the transform to -o and prints a summary."""
-    from weldcell.plugins.handeye.report import summary_lines, write_offline_report
+    from weldcell.plugins.handeye import cli_steps as step
     from weldcell.plugins.handeye.stages import FlangeHandEye
-    from weldcell.sdk.cli import out
-    from weldcell.sdk.handeye_files import sample_id, write_result
+    from weldcell.sdk.handeye_files import write_result
 
-    if flange_model is not None and not flange_model.is_file():
-        raise UsageError(f"flange model not found: {flange_model}", "give an STL/PCD/PLY file of the flange")
-    if flange_model is not None and flange_model.suffix.lower() in (".ply", ".pcd"):
-        from weldcell.sdk.cloudfile import check_cloud_file
-
-        check_cloud_file(flange_model)  # header and body checked before anything is computed
+    step.check_flange_model(flange_model)
     s, board_given = _stage_settings(
         settings_file,
-        {
-            "flange_model": str(flange_model) if flange_model else None,
-            "flange_d1": float(flange_d1) if flange_d1 else None,
-            "verifier": verifier,
-            "inlier_threshold": None if inlier_threshold is None else inlier_threshold * 1e-3,
-            "allow_coplanar": allow_coplanar or None,
-        },
+        step.flange_overrides(flange_model, flange_d1, verifier, inlier_threshold, allow_coplanar),
     )
     stage = FlangeHandEye(s)
     try:
         ss = read_data(data_dir, layout, units, quaternion)
     except DataError as e:
-        raise _cli_fix(e) from None
+        raise step.cli_fix(e) from None
     notes = list(ss.notes)
-    method = method or _default_method(ss)
-    try:
-        extra: dict = board_settings(
-            method, board_given, board_spec, intrinsics, calibrate_intrinsics, ss.board
-        )
-    except DataError as e:
-        raise _cli_fix(e) from None
+    method = method or step.default_method(ss)
+    board = step.BoardOptions(board_spec, intrinsics, calibrate_intrinsics)
+    extra = step.board_extra(method, board_given, board, ss.board)
     if remeasure:
-        n = sum(smp.cloud is not None for smp in ss.samples)
-        if n == 0:
-            raise UsageError(f"{data_dir}: --remeasure, but no sample has a scan", "drop --remeasure")
-        for smp in ss.samples:
-            if smp.cloud is not None:
-                smp.p_cam = None
-        notes.append(f"flange centres measured from {n} scans (--remeasure)")
-    try:
-        notes += measure_scans(ss, stage, need_pose=not method.startswith("flange"))
-        verification = None
-        if method == "flange-iterative" and verifier is None and s.verifier == "icp":
-            if not any(smp.cloud is not None and smp.T_base_flange is not None for smp in ss.samples):
-                stage = FlangeHandEye(s.model_copy(update={"verifier": "consensus"}))
-                s = stage.s
-                notes.append("Algorithm 1 verifies by consensus (no scan with a robot pose for eq. 13)")
-        if method == "flange-iterative" and s.verifier == "icp":
-            verification = _verification_sample(ss, stage, verify_sample)
-            notes.append(f"sample {verification[2]} is the ICP verification scan (left out of the fit)")
-            verification = verification[:2]
-        f = _feature(feature)
-        if f is not None:
-            extra["feature"] = f
-        fb = _feature(feature_base, "--feature-base", "origin") if feature_base else ss.feature_base
-        if fb is not None:
-            extra["feature_base"] = fb
-        result = stage.solve(
-            ss.samples, config or ss.config, verification=verification, method=method, **extra
-        )
-    except DataError as e:
-        raise _cli_fix(e) from None
-    if verification is not None and s.flange_model:
-        notes += _model_notes(stage.flange_model, result)
-    result.warnings += [f"skipped {n}" for n in notes if n.startswith("scan ")]
-    result.metrics["sample_index"] = [int(smp.meta.get("index", i)) for i, smp in enumerate(ss.samples)]
-    result.metrics["sample_ids"] = [sample_id(smp, i) for i, smp in enumerate(ss.samples)]
-    result.metrics["source"] = {
-        "data": str(data_dir),
-        "layout": layout if layout != "auto" else detect_layout(data_dir),
-        "notes": notes,
-    }
+        notes.append(step.forget_measured_centres(ss, data_dir))
+    asked = step.SolveOptions(method, config, verifier, verify_sample, feature, feature_base)
+    result = step.solve(ss, stage, extra, asked, notes)
+    step.record_source(result, ss, notes, data_dir, layout)
     write_result(output, result)
-    lines = summary_lines(result)
-    lines += [f"note            {n}" for n in notes]
-    if report_dir is not None:
-        written = _write_report(report_dir, result, lines, write_offline_report)
-        lines.append(f"report          {report_dir}/ ({', '.join(written)})")
-    if not quiet:
-        out.print("\n".join(lines), markup=False)
-    out.print(f"wrote {output}", markup=False)
-
-
-def _default_method(ss) -> str:
-    """flange for scans and flange centres; park for board photos or board poses."""
-    boards = any(x.image is not None or x.T_cam_target is not None for x in ss.samples)
-    flange = any(x.cloud is not None or x.p_cam is not None for x in ss.samples)
-    return "park" if boards and not flange else "flange"
-
-
-def _model_notes(fm, result) -> list[str]:
-    """What cleaning the flange model did (notes), its warnings into the result, its report in metrics."""
-    r = fm.report
-    result.metrics["flange_model"] = r
-    result.warnings += fm.warnings
-    notes = [f"flange model read as {r['units']}: {r['diameter_mm']} mm across, {r['points_out']} points"]
-    if r.get("nonfinite_dropped"):
-        notes.append(f"flange model: {r['nonfinite_dropped']} NaN/inf points of {r['points_in']} dropped")
-    if r.get("moved"):
-        notes.append(r["moved"])
-    return notes
-
-
-def _write_report(report_dir: Path, result, lines: list[str], writer) -> list[str]:
-    """The offline report written into a scratch folder, then each file moved into ``report_dir``
-    atomically and durably: a crash leaves the old or the new file, never half of one."""
-    import shutil
-
-    from weldcell.sdk.artifacts import write_bytes
-
-    scratch = Path(tempfile.mkdtemp(prefix="weldcell-report-"))
-    try:
-        written = writer(scratch, result, lines)
-        for name in written:
-            write_bytes(report_dir / name, (scratch / name).read_bytes())
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    return written
-
-
-def _verification_sample(ss, stage, index: int | None):
-    """(face cloud, T_base_flange, index) of the verification scan; it is removed from ``ss``."""
-    from weldcell.sdk.cloud import read_cloud
-
-    cands = [i for i, smp in enumerate(ss.samples) if smp.cloud is not None and smp.T_base_flange is not None]
-    if index is None:
-        if not cands:
-            raise UsageError(
-                "the ICP verifier needs a sample with a scan and a robot pose",
-                "use --verifier consensus for point-pair data",
-            )
-        index = cands[0]
-    if index not in cands:
-        raise UsageError(f"--verify-sample {index} has no scan with a robot pose", f"use one of {cands}")
-    smp = ss.samples.pop(index)
-    pts = (
-        smp.cloud
-        if not isinstance(smp.cloud, str | Path)
-        else read_cloud(smp.cloud, units=smp.meta.get("cloud_units", "m"), frame="camera").points
-    )
-    m = stage.measure(pts, seed=index)
-    from weldcell.sdk.handeye_files import sample_id
-
-    return m.face, smp.T_base_flange, sample_id(smp, index)
+    step.print_summary(result, notes, report_dir, quiet, output)

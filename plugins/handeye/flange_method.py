@@ -13,7 +13,7 @@ import numpy as np
 from weldcell.plugins.handeye import diagnostics
 from weldcell.plugins.handeye.circle import ransac_circle
 from weldcell.plugins.handeye.featurefit import fit_with_unknown_point
-from weldcell.plugins.handeye.iterative import iterative_pool
+from weldcell.plugins.handeye.iterative import PoolOptions, run_pool
 from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
 from weldcell.plugins.handeye.verification import (
     ConsensusVerifier,
@@ -244,31 +244,10 @@ def _fit_known_feature(
 
 
 def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
+    """Algorithm 1 with the configured verifier (ICP falling back to consensus when eq. 13 cannot
+    verify); returns X, residuals, inliers (the pool) and the metrics (with ``warnings``)."""
     cost = translation_cost if s["cost"] == "translation" else radius_cost(float(s["work_radius"]))
-    v = s["verifier"]
-    sees = False
-    if v == "consensus":
-        verifier, sees = ConsensusVerifier(c, dst), True
-    elif v == "icp":
-        ver = s["verification"] or {}
-        if kind != "fixed" or not {"cloud", "T_base_flange", "model"} <= set(ver):
-            raise UsageError(
-                "the ICP verifier needs verification={'cloud', 'T_base_flange', 'model'} (fixed camera)",
-                "give a verification scan, its robot pose and a flange model (flange_model module)",
-            )
-        cloud = ver["cloud"]
-        if isinstance(cloud, str | Path):
-            cloud = read_cloud(cloud, units=s["cloud_units"], frame="camera").points
-        verifier = IcpVerifier(
-            np.asarray(ver["model"], float),
-            np.asarray(ver["T_base_flange"], float),
-            np.asarray(cloud, float),
-            **ver.get("icp", {}),
-        )
-    elif callable(v):
-        verifier = v
-    else:
-        raise UsageError(f"unknown verifier {v!r}", "use 'consensus', 'icp' or a callable H -> e")
+    verifier, sees = _algorithm1_verifier(kind, c, dst, s)
     warnings: list[str] = []
     used = "consensus" if sees else ("icp" if isinstance(verifier, IcpVerifier) else "callable")
     if isinstance(verifier, IcpVerifier):  # can eq. 13 verify even the best estimate there is?
@@ -276,29 +255,11 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         if verifier(H0) is None:
             warnings.append(_icp_failed(verifier, "even at the all-pairs fit"))
             verifier, sees, used = ConsensusVerifier(c, dst), True, "consensus (ICP failed)"
-
-    def run(ver, sees_count: bool):
-        return iterative_pool(
-            c,
-            dst,
-            ver,
-            cost,
-            float(s["e_required"]) if not sees_count or v == "consensus" else 0.0,
-            int(s["k_max"]),
-            verifier_sees_count=sees_count,
-            inner=s["inner"],
-            refit=s["refit"],
-            search=s["search"],
-            budget=int(s["budget"]),
-            seed=s["seed"],
-            time_limit=s["time_limit"],
-            max_verifications=s["max_verifications"],
-        )
-
-    pr = run(verifier, sees)
+    pr = run_pool(c, dst, verifier, cost, _pool_options(s, sees))
     if not np.isfinite(pr.cost) and isinstance(verifier, IcpVerifier):
         warnings.append(_icp_failed(verifier, "for any pool"))
-        pr, used = run(ConsensusVerifier(c, dst), True), "consensus (ICP failed)"
+        pr = run_pool(c, dst, ConsensusVerifier(c, dst), cost, _pool_options(s, True))
+        used = "consensus (ICP failed)"
     if pr.timed_out:
         warnings.append(
             f"Algorithm 1 stopped at its limit ({pr.events[-1]}) after {pr.n_used} of {len(c)} "
@@ -325,6 +286,51 @@ def _algorithm1(kind: str, P, c: np.ndarray, dst: np.ndarray, s: dict):
         "warnings": warnings,
     }
     return X, res, inl, m
+
+
+def _algorithm1_verifier(kind: str, c: np.ndarray, dst: np.ndarray, s: dict):
+    """(verifier, whether it is called with the number of pairs seen) for ``s["verifier"]``: the
+    consensus one, eq. 13's ICP against the flange model (fixed camera only), or a callable."""
+    v = s["verifier"]
+    if v == "consensus":
+        return ConsensusVerifier(c, dst), True
+    if v == "icp":
+        ver = s["verification"] or {}
+        if kind != "fixed" or not {"cloud", "T_base_flange", "model"} <= set(ver):
+            raise UsageError(
+                "the ICP verifier needs verification={'cloud', 'T_base_flange', 'model'} (fixed camera)",
+                "give a verification scan, its robot pose and a flange model (flange_model module)",
+            )
+        cloud = ver["cloud"]
+        if isinstance(cloud, str | Path):
+            cloud = read_cloud(cloud, units=s["cloud_units"], frame="camera").points
+        verifier = IcpVerifier(
+            np.asarray(ver["model"], float),
+            np.asarray(ver["T_base_flange"], float),
+            np.asarray(cloud, float),
+            **ver.get("icp", {}),
+        )
+        return verifier, False
+    if callable(v):
+        return v, False
+    raise UsageError(f"unknown verifier {v!r}", "use 'consensus', 'icp' or a callable H -> e")
+
+
+def _pool_options(s: dict, sees_count: bool) -> PoolOptions:
+    """Algorithm 1's options from the calibrate settings. A verifier that sees the pair count but is
+    not the configured consensus one (the ICP fallback) runs to the end of the data (e_required 0)."""
+    return PoolOptions(
+        e_required=float(s["e_required"]) if not sees_count or s["verifier"] == "consensus" else 0.0,
+        k_max=int(s["k_max"]),
+        verifier_sees_count=sees_count,
+        inner=s["inner"],
+        refit=s["refit"],
+        search=s["search"],
+        budget=int(s["budget"]),
+        seed=s["seed"],
+        time_limit=s["time_limit"],
+        max_verifications=s["max_verifications"],
+    )
 
 
 def _icp_failed(verifier: IcpVerifier, when: str) -> str:

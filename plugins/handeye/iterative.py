@@ -160,7 +160,29 @@ def _wide_step(
     return best
 
 
-# parameters: Algorithm 1's documented options (keywords with the paper's defaults); long docstring
+@dataclass(frozen=True)
+class PoolOptions:
+    """Algorithm 1's options (see :func:`iterative_pool` for each one's meaning; paper defaults).
+
+    The typed form of :func:`iterative_pool`'s keywords, for :func:`run_pool` (as Open3D passes an
+    ``ICPConvergenceCriteria`` rather than loose numbers)."""
+
+    e_required: float = 0.0
+    k_max: int = 10_000
+    pool_size: int = 4
+    verifier_sees_count: bool = False
+    inner: Literal["best", "sequential"] = "best"
+    refit: float | None = None
+    refit_floor: float = 0.0
+    search: Literal["published", "wide"] = "published"
+    budget: int = 64
+    seed: int | np.random.Generator | None = 0
+    time_limit: float | None = None
+    max_verifications: int | None = None
+
+
+# parameters: Algorithm 1's documented options as keywords with the paper's defaults (the public call
+# form; they are gathered into a PoolOptions and run by run_pool); long docstring
 def iterative_pool(
     src: np.ndarray,
     dst: np.ndarray,
@@ -210,59 +232,112 @@ def iterative_pool(
     wall-clock time, the one deliberate exception to repeatability: where it cuts depends on the
     host's speed and load, so it is off by default.
     """
+    options = PoolOptions(
+        e_required=e_required,
+        k_max=k_max,
+        pool_size=pool_size,
+        verifier_sees_count=verifier_sees_count,
+        inner=inner,
+        refit=refit,
+        refit_floor=refit_floor,
+        search=search,
+        budget=budget,
+        seed=seed,
+        time_limit=time_limit,
+        max_verifications=max_verifications,
+    )
+    return run_pool(src, dst, verifier, cost, options)
+
+
+def run_pool(
+    src: np.ndarray,
+    dst: np.ndarray,
+    verifier: Verifier | Callable[[np.ndarray, int], np.ndarray | None],
+    cost: Cost = translation_cost,
+    options: PoolOptions | None = None,
+) -> PoolResult:
+    """Algorithm 1 (:func:`iterative_pool`) with its options as one :class:`PoolOptions`."""
+    o = options or PoolOptions()
     src = np.asarray(src, float).reshape(-1, 3)
     dst = np.asarray(dst, float).reshape(-1, 3)
-    n = len(src)
-    _check_args(n, pool_size, inner, search, budget)
-    rng = np.random.default_rng(seed)
-    sc = _Scorer(src, dst, verifier, cost, verifier_sees_count)
-    pub = best = sc.best_of(np.arange(pool_size)[None], pool_size)
-    history = [np.inf] * (pool_size - 1) + [best.cost]
-    H_hist = [np.full((4, 4), np.nan)] * (pool_size - 1) + [best.H]
-    k = 0
-    nxt = pool_size
-    events: list[str] = []
-    t0, timed_out = time.monotonic(), False
-    while best.cost > e_required and k <= k_max and nxt < n:
-        if time_limit is not None and time.monotonic() - t0 > time_limit:
-            timed_out = True
-            events.append(f"time limit {time_limit:g} s reached after {nxt} pairs")
-            break
-        if max_verifications is not None and sc.calls >= max_verifications:
-            timed_out = True
-            events.append(f"verification limit {max_verifications} reached after {nxt} pairs")
-            break
-        if verifier_sees_count and np.isfinite(best.cost):
-            pub = sc.rescore(pub, nxt + 1)
-            best = pub if best.pool == pub.pool else sc.rescore(best, nxt + 1)
-        pub = _published_step(pub, nxt, sc, inner, events)
-        if search == "wide":
-            best = min(best, pub, _wide_step(best, nxt, sc, budget, rng, events), key=lambda s: s.cost)
+    _check_args(len(src), o.pool_size, o.inner, o.search, o.budget)
+    run = _PoolRun(_Scorer(src, dst, verifier, cost, o.verifier_sees_count), o)
+    while run.takes_another(len(src)):
+        run.add_pair()
+    return run.result()
+
+
+class _PoolRun:
+    """One run of Algorithm 1: the published pool, the best pool (the same unless ``search="wide"``),
+    the per-pair history, and the stop conditions."""
+
+    def __init__(self, sc: _Scorer, o: PoolOptions) -> None:
+        self.sc, self.o = sc, o
+        self.rng = np.random.default_rng(o.seed)
+        # steps 1-3: the first pool_size pairs form S_0
+        self.pub = self.best = sc.best_of(np.arange(o.pool_size)[None], o.pool_size)
+        self.history = [np.inf] * (o.pool_size - 1) + [self.best.cost]
+        self.H_hist = [np.full((4, 4), np.nan)] * (o.pool_size - 1) + [self.best.H]
+        self.k = 0
+        self.nxt = o.pool_size
+        self.events: list[str] = []
+        self.t0, self.timed_out = time.monotonic(), False
+
+    def takes_another(self, n: int) -> bool:
+        """Step 4's test, then the time and verification limits (``timed_out``, with an event)."""
+        o = self.o
+        if not (self.best.cost > o.e_required and self.k <= o.k_max and self.nxt < n):
+            return False
+        if o.time_limit is not None and time.monotonic() - self.t0 > o.time_limit:
+            self.events.append(f"time limit {o.time_limit:g} s reached after {self.nxt} pairs")
+        elif o.max_verifications is not None and self.sc.calls >= o.max_verifications:
+            self.events.append(f"verification limit {o.max_verifications} reached after {self.nxt} pairs")
         else:
-            best = pub
-        history.append(best.cost)
-        H_hist.append(best.H)
-        nxt += 1
-        k += 1
-    H_refit = refit_idx = None
-    if refit is not None:
-        H_refit, refit_idx = _consensus_refit(best.H, src[:nxt], dst[:nxt], refit, refit_floor)
-    return PoolResult(
-        H=best.H,
-        e=best.e,
-        cost=best.cost,
-        pool=best.pool,
-        history=np.asarray(history),
-        H_history=np.asarray(H_hist),
-        n_used=nxt,
-        converged=bool(best.cost <= e_required),
-        H_compensated=None if best.e is None else compensate(best.H, best.e),
-        events=events,
-        timed_out=timed_out,
-        H_refit=H_refit,
-        refit_inliers=refit_idx,
-        n_verified=sc.calls,
-    )
+            return True
+        self.timed_out = True
+        return False
+
+    def add_pair(self) -> None:
+        """Steps 5-15 for the next pair (and the wide search's subsets), then its history entry."""
+        o, sc, nxt = self.o, self.sc, self.nxt
+        if o.verifier_sees_count and np.isfinite(self.best.cost):
+            self.pub = sc.rescore(self.pub, nxt + 1)
+            self.best = self.pub if self.best.pool == self.pub.pool else sc.rescore(self.best, nxt + 1)
+        self.pub = _published_step(self.pub, nxt, sc, o.inner, self.events)
+        if o.search == "wide":
+            wide = _wide_step(self.best, nxt, sc, o.budget, self.rng, self.events)
+            self.best = min(self.best, self.pub, wide, key=lambda s: s.cost)
+        else:
+            self.best = self.pub
+        self.history.append(self.best.cost)
+        self.H_hist.append(self.best.H)
+        self.nxt += 1
+        self.k += 1
+
+    def result(self) -> PoolResult:
+        """The pool found, with the consensus refit when asked."""
+        best, o, nxt = self.best, self.o, self.nxt
+        H_refit = refit_idx = None
+        if o.refit is not None:
+            H_refit, refit_idx = _consensus_refit(
+                best.H, self.sc.src[:nxt], self.sc.dst[:nxt], o.refit, o.refit_floor
+            )
+        return PoolResult(
+            H=best.H,
+            e=best.e,
+            cost=best.cost,
+            pool=best.pool,
+            history=np.asarray(self.history),
+            H_history=np.asarray(self.H_hist),
+            n_used=nxt,
+            converged=bool(best.cost <= o.e_required),
+            H_compensated=None if best.e is None else compensate(best.H, best.e),
+            events=self.events,
+            timed_out=self.timed_out,
+            H_refit=H_refit,
+            refit_inliers=refit_idx,
+            n_verified=self.sc.calls,
+        )
 
 
 def _consensus_refit(

@@ -184,75 +184,22 @@ def localize(template: Template, edges, settings: LocalizeSettings | None = None
     xy = _as_xy(edges)
     xy = xy[np.isfinite(xy).all(axis=1)]
     segs = Segments.of(template)
-    center, radius = template.centroid, template.radius
+    center = template.centroid
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     if len(xy) < s.min_points:
-        return Localization(
-            "failed",
-            f"only {len(xy)} edge points (need {s.min_points}): the scan did not "
-            f"cross the workpiece's edges; check the inspection plan, then {HAND_WELD}",
-            np.zeros(3),
-            center,
-            float("nan"),
-            np.full((3, 3), np.nan),
-            n_points=len(xy),
-            method=s.method,
-        )
+        return _too_few_points(template, len(xy), s)
     runner = SeedRunner(s.workers, s.parallel)
     cap = max(4 * s.coarse_step, 0.02)
     grid = (s.grid_resolution, cap + 0.02, cap)
     fld = field_for(segs.array, *grid)
     timings["distance_field"] = time.perf_counter() - t0
-    t1, c1 = time.perf_counter(), time.process_time()
     if s.method == "paper":
-        rng = np.random.default_rng(0)
-        outline = np.concatenate([m.outline for m in template.members])
-        seeds = paper_seeds(outline, center, xy, s.seeds, s.seed_window_xy, s.seed_window_theta, rng)
-        results = runner.run(seeds_to_tasks(xy, segs, seeds, "linear", 1.0, radius, grid))
-        best = polish(xy, segs, min(results, key=lambda r: r.cost).pose, radius)  # exact eq. (3)
-        best.pose[2] = wrap(best.pose[2])  # Powell may have turned by 2 pi: the same pose
-        timings["powell"] = time.perf_counter() - t1
-        timings["powell_cpu"] = time.process_time() - c1  # this process only (not the pool's workers)
-        ref = _at(best.pose, xy, segs, center, s)
-        cands = [ref]
+        ref, cands = _paper_search(template, xy, segs, runner, grid, s, timings)
+        centres = None
     else:
-        centres = _window_centres(template, xy, s)
-        found = []
-        for cp in centres:  # search each window in its own frame, then compose (t_c + R_c t, th_c + th)
-            local = global_search(
-                fld,
-                inverse_xy(cp, center, xy),
-                center,
-                radius,
-                s.window_xy,
-                s.window_theta,
-                s.coarse_step,
-                s.candidates,
-            )
-            for r in local:
-                r.pose = np.array([*(cp[:2] + rot2(cp[2]) @ r.pose[:2]), cp[2] + r.pose[2]])
-            found += local
-        found.sort(key=lambda r: r.cost)
-        found = found[: s.candidates]
-        timings["global"] = time.perf_counter() - t1
-        t1 = time.perf_counter()
-        # a few iterations for every candidate; the full refinement only for those still in contention
-        quick = [
-            gauss_newton(c.pose, xy, segs, center, s.loss_scale, s.loss_scale, 4, fld=fld) for c in found
-        ]
-        quick.sort(key=lambda q: q.cost)
-        keep: list = []
-        for q in quick:  # distinct poses still in contention
-            if q.cost <= 2.0 * quick[0].cost + 1e-12 and all(
-                _pose_gap(q.pose, k.pose, radius) > s.ambiguity_distance for k in keep
-            ):
-                keep.append(q)
-        cands = [gauss_newton(q.pose, xy, segs, center, s.loss_scale, s.min_scale, fld=fld) for q in keep]
-        timings["refine"] = time.perf_counter() - t1
-        cands.sort(key=lambda c: c.cost)
-        ref = cands[0]
-    out = _judge(template, xy, segs, ref, cands, s, centres if s.method != "paper" else None)
+        ref, cands, centres = _windowed_search(template, xy, segs, fld, s, timings)
+    out = _judge(template, xy, segs, ref, cands, s, centres)
     t1 = time.perf_counter()
     out.members = member_fits(template, ref, xy, segs, center, _inlier(ref, s), s.member_tolerance)
     if out.status == "ok":  # a pose we cannot trust re-plans no weld (the members stay, for diagnosis)
@@ -263,6 +210,79 @@ def localize(template: Template, edges, settings: LocalizeSettings | None = None
     timings["total"] = time.perf_counter() - t0
     out.timings, out.parallel = timings, runner.reason
     return out
+
+
+def _too_few_points(template: Template, n: int, s: LocalizeSettings) -> Localization:
+    """The failed result of a scan that did not cross the workpiece's edges."""
+    return Localization(
+        "failed",
+        f"only {n} edge points (need {s.min_points}): the scan did not "
+        f"cross the workpiece's edges; check the inspection plan, then {HAND_WELD}",
+        np.zeros(3),
+        template.centroid,
+        float("nan"),
+        np.full((3, 3), np.nan),
+        n_points=n,
+        method=s.method,
+    )
+
+
+def _paper_search(template: Template, xy, segs, runner, grid, s: LocalizeSettings, timings: dict):
+    """The paper's search: Powell from seeds in the ±50 mm / ±20° window, polished by exact eq. (3);
+    the result at that pose without refinement. (result, candidates)"""
+    t1, c1 = time.perf_counter(), time.process_time()
+    center, radius = template.centroid, template.radius
+    rng = np.random.default_rng(0)
+    outline = np.concatenate([m.outline for m in template.members])
+    seeds = paper_seeds(outline, center, xy, s.seeds, s.seed_window_xy, s.seed_window_theta, rng)
+    results = runner.run(seeds_to_tasks(xy, segs, seeds, "linear", 1.0, radius, grid))
+    best = polish(xy, segs, min(results, key=lambda r: r.cost).pose, radius)  # exact eq. (3)
+    best.pose[2] = wrap(best.pose[2])  # Powell may have turned by 2 pi: the same pose
+    timings["powell"] = time.perf_counter() - t1
+    timings["powell_cpu"] = time.process_time() - c1  # this process only (not the pool's workers)
+    ref = _at(best.pose, xy, segs, center, s)
+    return ref, [ref]
+
+
+def _windowed_search(template: Template, xy, segs, fld, s: LocalizeSettings, timings: dict):
+    """Global search in each window (its own frame, then composed), a few Gauss-Newton iterations for
+    every candidate, the full refinement for the distinct ones still in contention.
+    (best, candidates, window centres)"""
+    center, radius = template.centroid, template.radius
+    t1 = time.perf_counter()
+    centres = _window_centres(template, xy, s)
+    found = []
+    for cp in centres:  # search each window in its own frame, then compose (t_c + R_c t, th_c + th)
+        local = global_search(
+            fld,
+            inverse_xy(cp, center, xy),
+            center,
+            radius,
+            s.window_xy,
+            s.window_theta,
+            s.coarse_step,
+            s.candidates,
+        )
+        for r in local:
+            r.pose = np.array([*(cp[:2] + rot2(cp[2]) @ r.pose[:2]), cp[2] + r.pose[2]])
+        found += local
+    found.sort(key=lambda r: r.cost)
+    found = found[: s.candidates]
+    timings["global"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    # a few iterations for every candidate; the full refinement only for those still in contention
+    quick = [gauss_newton(c.pose, xy, segs, center, s.loss_scale, s.loss_scale, 4, fld=fld) for c in found]
+    quick.sort(key=lambda q: q.cost)
+    keep: list = []
+    for q in quick:  # distinct poses still in contention
+        if q.cost <= 2.0 * quick[0].cost + 1e-12 and all(
+            _pose_gap(q.pose, k.pose, radius) > s.ambiguity_distance for k in keep
+        ):
+            keep.append(q)
+    cands = [gauss_newton(q.pose, xy, segs, center, s.loss_scale, s.min_scale, fld=fld) for q in keep]
+    timings["refine"] = time.perf_counter() - t1
+    cands.sort(key=lambda c: c.cost)
+    return cands[0], cands, centres
 
 
 def _at(pose, xy, segs, center, s: LocalizeSettings) -> Refined:

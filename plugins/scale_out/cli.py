@@ -135,6 +135,7 @@ def batch_command(items, out_dir, command_args, reports, scheduler, workers, ret
 @click.option("--keep-runs", is_flag=True, help="Keep every trial's whole run folder (captures included).")
 @click.option("--reports", is_flag=True, help="Let every trial write its job report and pictures.")
 @_cluster_options
+# one parameter per click option (click passes them by name); the body hands them to run_study
 def study_command(
     profile,
     function,
@@ -179,8 +180,19 @@ def study_command(
         by=by,
     )
     c = study["counts"]
+    _echo_study(study, profile.name if profile else function, by, out_dir)
+    if c["lost"] or c["pending"]:
+        raise JobError(
+            f"{c['lost'] + c['pending']} trials did not finish",
+            "run the same command again: finished trials are skipped",
+        )
+
+
+def _echo_study(study: dict, name: str, by: str | None, out_dir: Path) -> None:
+    """The study's counts, the first statistics (overall and per ``--by`` group) and where its report is."""
+    c = study["counts"]
     click.echo(
-        f"study {profile.name if profile else function}: {c['ok']} ok, {c['failed']} failed (failure rate "
+        f"study {name}: {c['ok']} ok, {c['failed']} failed (failure rate "
         f"{study['failure_rate'] * 100:.1f} %), {c['lost']} lost, of {c['trials']} trials"
     )
     for k, st in list(study["statistics"].items())[:12]:
@@ -195,8 +207,3 @@ def study_command(
             if st.get("n"):
                 click.echo(f"    {k:<34} mean {st['mean']:.6g}  sigma {st['std']:.6g}  p50 {st['p50']:.6g}")
     click.echo(f"report: {Path(out_dir).resolve()}/index.html")
-    if c["lost"] or c["pending"]:
-        raise JobError(
-            f"{c['lost'] + c['pending']} trials did not finish",
-            "run the same command again: finished trials are skipped",
-        )

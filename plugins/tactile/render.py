@@ -97,40 +97,9 @@ def render_tag_image(
     if ss < 1:
         raise UsageError("render: supersample must be >= 1", "use 1 (fast) to 4 (smooth)")
     w, h = intrinsics.width, intrinsics.height
-    side_px = 240
-    margin_px = int(round(margin * side_px))
-    bitmap = _marker_bitmap(dictionary, int(marker_id), side_px, margin_px).astype(np.float32)
+    bitmap, Hn = _tag_bitmap(T, marker_size, dictionary, marker_id, margin)
     bitmap = black + (white - black) * bitmap / 255.0
-    S = bitmap.shape[0]
-    W = marker_size * S / side_px  # metres spanned by the padded bitmap
-    A = np.array([[W / S, 0.0, 0.5 * W / S - W / 2], [0.0, -W / S, W / 2 - 0.5 * W / S], [0.0, 0.0, 1.0]])
-    Hn = np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]]) @ A  # bitmap px -> normalised camera coords
-    if not np.any(intrinsics.dist):
-        K = intrinsics.K
-        Kss = np.array(
-            [
-                [ss * K[0, 0], ss * K[0, 1], ss * K[0, 2] + (ss - 1) / 2.0],
-                [0.0, ss * K[1, 1], ss * K[1, 2] + (ss - 1) / 2.0],
-                [0.0, 0.0, 1.0],
-            ]
-        )
-        big = cv2.warpPerspective(
-            bitmap,
-            Kss @ Hn,
-            (w * ss, h * ss),
-            flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=-1.0,
-        )
-    else:
-        rays = _undistorted_rays(tuple(intrinsics.K.ravel()), tuple(intrinsics.dist.ravel()), w, h, ss)
-        Hi = np.linalg.inv(Hn)
-        x, y = rays[..., 0], rays[..., 1]
-        den = Hi[2, 0] * x + Hi[2, 1] * y + Hi[2, 2]
-        mx = ((Hi[0, 0] * x + Hi[0, 1] * y + Hi[0, 2]) / den).astype(np.float32)
-        my = ((Hi[1, 0] * x + Hi[1, 1] * y + Hi[1, 2]) / den).astype(np.float32)
-        mx[den <= 0] = -10.0
-        big = cv2.remap(bitmap, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+    big = _warp_supersampled(bitmap, Hn, intrinsics, ss)
     bg = _background(h * ss, w * ss, background)
     big = np.where(big < 0, bg, big)
     img = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA) if ss > 1 else big
@@ -140,6 +109,54 @@ def render_tag_image(
         rng = np.random.default_rng(rng)
         img = img + rng.normal(0.0, noise_std, img.shape).astype(np.float32)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def _tag_bitmap(
+    T: np.ndarray, marker_size: float, dictionary: str, marker_id: int, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tag bitmap with its quiet zone (float32, 0-255) and the homography ``[r1 r2 t] A`` from its
+    pixels to normalised camera coordinates."""
+    side_px = 240
+    margin_px = int(round(margin * side_px))
+    bitmap = _marker_bitmap(dictionary, int(marker_id), side_px, margin_px).astype(np.float32)
+    S = bitmap.shape[0]
+    W = marker_size * S / side_px  # metres spanned by the padded bitmap
+    A = np.array([[W / S, 0.0, 0.5 * W / S - W / 2], [0.0, -W / S, W / 2 - 0.5 * W / S], [0.0, 0.0, 1.0]])
+    return bitmap, np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]]) @ A
+
+
+def _warp_supersampled(
+    bitmap: np.ndarray, Hn: np.ndarray, intrinsics: CameraIntrinsics, ss: int
+) -> np.ndarray:
+    """The bitmap seen at ``ss``× resolution (-1 off the tag): one perspective warp for a pinhole camera,
+    else a per-pixel remap through the lens distortion."""
+    cv2 = cv2_module()
+    w, h = intrinsics.width, intrinsics.height
+    if not np.any(intrinsics.dist):
+        K = intrinsics.K
+        Kss = np.array(
+            [
+                [ss * K[0, 0], ss * K[0, 1], ss * K[0, 2] + (ss - 1) / 2.0],
+                [0.0, ss * K[1, 1], ss * K[1, 2] + (ss - 1) / 2.0],
+                [0.0, 0.0, 1.0],
+            ]
+        )
+        return cv2.warpPerspective(
+            bitmap,
+            Kss @ Hn,
+            (w * ss, h * ss),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=-1.0,
+        )
+    rays = _undistorted_rays(tuple(intrinsics.K.ravel()), tuple(intrinsics.dist.ravel()), w, h, ss)
+    Hi = np.linalg.inv(Hn)
+    x, y = rays[..., 0], rays[..., 1]
+    den = Hi[2, 0] * x + Hi[2, 1] * y + Hi[2, 2]
+    mx = ((Hi[0, 0] * x + Hi[0, 1] * y + Hi[0, 2]) / den).astype(np.float32)
+    my = ((Hi[1, 0] * x + Hi[1, 1] * y + Hi[1, 2]) / den).astype(np.float32)
+    mx[den <= 0] = -10.0
+    return cv2.remap(bitmap, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
 
 
 @lru_cache(maxsize=8)

@@ -80,7 +80,35 @@ def initial_tool_pose(planned_points: np.ndarray) -> np.ndarray:
     return frame_from_axes([t[0], t[1], 0.0], [0.0, 0.0, -1.0], [p[0], p[1], z0])
 
 
-# keyword-only simulation options, each with a default (the paper §3.1 protocol's knobs)
+@dataclass
+class SimulationOptions:
+    """The closed-loop simulation's knobs (the paper §3.1 protocol's), each with its default.
+
+    ``settings``: the servo's (default :class:`ServoSettings`); ``srm``: the true tool (default: the
+    servo's tip radius); ``camera``: the in-finger camera (default seeded by ``seed``); ``render``:
+    images through the detector, else the true tag pose with ``marker_noise`` (m, σ) added; ``rate_hz``:
+    camera frames per second; ``max_time`` (s): default 3× the plan's travel time + 5 s; ``gate``: the
+    motion gate; ``wall_normals``: of the seam's wall (default from the seam); ``tag_gain_error``: the
+    servo's tag-to-tip gain wrong by this fraction (SRM calibration error); ``start_pose``: the tool's
+    (default :func:`initial_tool_pose`); ``seed``: of camera noise and marker noise.
+    """
+
+    settings: ServoSettings | None = None
+    srm: SRMParams | None = None
+    camera: InFingerCamera | None = None
+    render: bool = True
+    rate_hz: float = 50.0
+    max_time: float | None = None
+    gate: Gate | None = None
+    wall_normals: np.ndarray | None = None
+    marker_noise: float = 1.5e-5
+    tag_gain_error: float = 0.0
+    start_pose: np.ndarray | None = None
+    seed: int = 0
+
+
+# keyword-only simulation options, each with a default (the paper §3.1 protocol's knobs): the call form
+# of SimulationOptions, kept for its callers (simulate_tracking takes the object)
 def track_seam(
     seam_points_true: np.ndarray,
     planned_path_with_error: np.ndarray,
@@ -102,51 +130,101 @@ def track_seam(
 
     ``settings.wall_side`` says on which side of travel the wall stands (the free side is the other).
     ``tag_gain_error`` makes the servo's tag-to-tip gain wrong by that fraction (SRM calibration error).
+    The options are those of :class:`SimulationOptions`.
     """
-    S = settings or ServoSettings()
-    srm = srm or SRMParams(tip_radius=S.tip_radius)
+    options = SimulationOptions(
+        settings=settings,
+        srm=srm,
+        camera=camera,
+        render=render,
+        rate_hz=rate_hz,
+        max_time=max_time,
+        gate=gate,
+        wall_normals=wall_normals,
+        marker_noise=marker_noise,
+        tag_gain_error=tag_gain_error,
+        start_pose=start_pose,
+        seed=seed,
+    )
+    return simulate_tracking(seam_points_true, planned_path_with_error, options)
+
+
+def simulate_tracking(
+    seam_points_true: np.ndarray,
+    planned_path_with_error: np.ndarray,
+    options: SimulationOptions | None = None,
+) -> TrackingResult:
+    """:func:`track_seam` with its options as one :class:`SimulationOptions`."""
+    o = options or SimulationOptions()
+    S = o.settings or ServoSettings()
+    srm = o.srm or SRMParams(tip_radius=S.tip_radius)
     if abs(srm.tip_radius - S.tip_radius) > 1e-9:
         raise DataError(
             "simulation: servo tip_radius differs from the SRM model's tip radius",
             "give both the same tip radius",
         )
-    if rate_hz <= 0:
+    if o.rate_hz <= 0:
         raise DataError("simulation: rate_hz must be > 0", "use the camera rate, e.g. 30-60 Hz")
     seam = np.asarray(seam_points_true, dtype=float)
     plan = np.asarray(planned_path_with_error, dtype=float)
     if plan.ndim == 2 and plan.shape[1] == 2:
         plan = np.column_stack([plan, np.full(len(plan), seam[0, 2] if seam.shape[1] == 3 else 0.0)])
     free_side = "right" if S.wall_side == "left" else "left"
-    wp = Workpiece(seam, wall_normals, free_side=free_side)
-    cam = camera or InFingerCamera(seed=seed)
-    est = MarkerDisplacementEstimator(cam.intrinsics, cam.marker_size, cam.marker_id, cam.dictionary)
-    rng = np.random.default_rng(seed + 1)
-    if render:
-        est.capture_rest([cam.render(cam.T_cam_tag_rest) for _ in range(5)])
-    else:
-        est.set_rest(cam.T_cam_tag_rest)
-    assumed = SRMParams(
-        **{
-            **srm.__dict__,
-            "tag_gain": srm.tag_gain * (1.0 + tag_gain_error),
-            "tag_axial_gain": srm.tag_axial_gain * (1.0 + tag_gain_error),
-        }
-    )
-    servo = TactileSeamServo(plan, S, gate)
-    T = initial_tool_pose(plan) if start_pose is None else np.asarray(start_pose, dtype=float).copy()
-    dt = 1.0 / rate_hz
+    wp = Workpiece(seam, o.wall_normals, free_side=free_side)
+    sensor = _TagSensor(o, srm)
+    servo = TactileSeamServo(plan, S, o.gate)
+    T = initial_tool_pose(plan) if o.start_pose is None else np.asarray(o.start_pose, dtype=float).copy()
+    max_time = o.max_time
     if max_time is None:
         max_time = 3.0 * (Polyline(plan).length + 0.05) / S.speed + 5.0
+    rec, cmd = _run_loop(T, wp, srm, sensor, servo, 1.0 / o.rate_hz, max_time)
+    return _tracking_result(rec, servo, plan, seam, cmd, S, srm)
 
-    def read_marker(T_cam_tag: np.ndarray, t: float):
-        if render:
-            return est.update(cam.render(T_cam_tag), t)
-        noisy = make_T(
-            Rotation.from_rotvec(rng.normal(0.0, 2e-3, 3)).as_matrix() @ T_cam_tag[:3, :3],
-            T_cam_tag[:3, 3] + rng.normal(0.0, marker_noise, 3) * np.array([1.0, 1.0, 2.0]),
+
+class _TagSensor:
+    """The in-finger camera and the marker estimator: a true tag pose in, the servo's tip deflection out
+    (None when the marker is lost), through rendered images or the noisy true pose."""
+
+    def __init__(self, o: SimulationOptions, srm: SRMParams) -> None:
+        self.cam = cam = o.camera or InFingerCamera(seed=o.seed)
+        self.est = MarkerDisplacementEstimator(cam.intrinsics, cam.marker_size, cam.marker_id, cam.dictionary)
+        self.rng = np.random.default_rng(o.seed + 1)
+        self.render, self.marker_noise = o.render, o.marker_noise
+        if o.render:
+            self.est.capture_rest([cam.render(cam.T_cam_tag_rest) for _ in range(5)])
+        else:
+            self.est.set_rest(cam.T_cam_tag_rest)
+        g = 1.0 + o.tag_gain_error  # the gains the servo assumes
+        self.assumed = SRMParams(
+            **{**srm.__dict__, "tag_gain": srm.tag_gain * g, "tag_axial_gain": srm.tag_axial_gain * g}
         )
-        return est.update_pose(noisy, t)
 
+    def deflection(self, T_cam_tag: np.ndarray, t: float) -> np.ndarray | None:
+        if self.render:
+            reading = self.est.update(self.cam.render(T_cam_tag), t)
+        else:
+            rng = self.rng
+            noisy = make_T(
+                Rotation.from_rotvec(rng.normal(0.0, 2e-3, 3)).as_matrix() @ T_cam_tag[:3, :3],
+                T_cam_tag[:3, 3] + rng.normal(0.0, self.marker_noise, 3) * np.array([1.0, 1.0, 2.0]),
+            )
+            reading = self.est.update_pose(noisy, t)
+        if isinstance(reading, MarkerReading):
+            return -tip_deflection_from_tag(reading.displacement, self.assumed)
+        return None
+
+
+def _run_loop(
+    T: np.ndarray,
+    wp: Workpiece,
+    srm: SRMParams,
+    sensor: _TagSensor,
+    servo: TactileSeamServo,
+    dt: float,
+    max_time: float,
+):
+    """Frames until the servo is done or ``max_time``: contact, marker, servo step, then an ideal
+    velocity-integrating robot holds the commanded TCP twist for one frame. (recorded frames, last command)"""
     rec: dict[str, list] = {k: [] for k in _RECORDED}
     v_prev = np.zeros(3)
     k = 0
@@ -154,22 +232,18 @@ def track_seam(
     while k * dt <= max_time:
         t = k * dt
         c = contact(T, wp, srm, v_prev)
-        reading = read_marker(tag_pose(c.deflection_tool, srm, cam.T_cam_tag_rest), t)
-        delta_tool = None
-        if isinstance(reading, MarkerReading):
-            delta_tool = -tip_deflection_from_tag(reading.displacement, assumed)
+        delta_tool = sensor.deflection(tag_pose(c.deflection_tool, srm, sensor.cam.T_cam_tag_rest), t)
         cmd = servo.step(t, T, delta_tool)
         _record(rec, t, T, cmd, c, delta_tool is not None)
         if cmd.done:
             break
-        # ideal velocity-integrating robot: twist of the TCP held for one frame
         v, w = cmd.twist[:3], cmd.twist[3:]
         T = T.copy()
         T[:3, 3] += v * dt
         T[:3, :3] = Rotation.from_rotvec(w * dt).as_matrix() @ T[:3, :3]
         v_prev = v
         k += 1
-    return _tracking_result(rec, servo, plan, seam, cmd, S, srm)
+    return rec, cmd
 
 
 _RECORDED = (

@@ -352,7 +352,8 @@ def _prepare_function(function: str, parsed: dict[str, Distribution], seed: int,
     return draws, texts, function, trial_function.fingerprint(function), (root,) if root else ()
 
 
-# one parameter per `weldcell study` option (the command passes them by name)
+# one parameter per `weldcell study` option (the command passes them by name); the body is the steps
+# below, each taking only what it uses
 def run_study(
     profile: Path | None,
     trials: int,
@@ -371,16 +372,7 @@ def run_study(
     ``study.json``. ``by``: a varied key whose values group the statistics (``study["groups"]``)."""
     from weldcell.sdk.scale.report import write_study_report
 
-    if trials < 1:
-        raise UsageError(f"--trials {trials}: at least one trial", "give --trials N with N >= 1")
-    if (profile is None) == (function is None):
-        raise UsageError(
-            "a study runs a PROFILE's job or a --function, one of the two",
-            "give a simulation profile, or --function MODULE:FUNCTION without a profile",
-        )
-    parsed = dict(parse_vary(v) for v in vary)
-    if by is not None and by not in parsed:
-        raise UsageError(f"--by {by}: not a varied key", f"give one of: {', '.join(parsed) or '(none)'}")
+    parsed = _check_request(profile, trials, vary, function, by)
     base: Path | None = None
     if function is not None:
         draws, texts, job, base_sha, roots = _prepare_function(function, parsed, seed, trials)
@@ -391,27 +383,14 @@ def run_study(
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     run_id = f"{datetime.now(UTC).strftime('%Y%m%d%H%M%S')}-{np.random.default_rng().integers(1 << 24):06x}"
-    study: dict[str, Any] = {
-        "schema": STUDY_SCHEMA,
-        "profile": str(base) if base is not None else None,
-        "function": function,
-        "job": job,
-        "seed": seed,
-        "trials_requested": trials,
-        "vary": {k: d.text.split("=", 1)[1].strip() for k, d in parsed.items()},
-        "units": {k: d.unit for k, d in parsed.items()},
-        "run": run_id,
-        "trials": {
-            str(i): {"trial": i, "seed": s, "values": v, "status": "pending"}
-            for i, (s, v) in enumerate(draws)
-        },
-    }
+    study = _new_study(base, function, job, seed, trials, parsed, run_id, draws)
     with open_runner(options) as runner:
         study["runner"] = runner.description
         if function is not None and not runner.in_process:
             from weldcell.sdk.scale import trial_function
 
             trial_function.check_workers(runner.client, function, options.python_path)
+        fingerprints = [hashlib.sha256((text + base_sha).encode()).hexdigest()[:16] for text in texts]
         batch = [
             TrialTask(
                 i,
@@ -419,7 +398,7 @@ def run_study(
                 v,
                 texts[i] if function is None else "",
                 str(out_dir),
-                hashlib.sha256((texts[i] + base_sha).encode()).hexdigest()[:16],
+                fingerprints[i],
                 run_id,
                 options.retries,
                 options.time_limit,
@@ -442,6 +421,51 @@ def run_study(
             artifacts.write_json(out_dir / "study.json", study)
             write_study_report(out_dir, study)
     return study
+
+
+def _check_request(
+    profile: Path | None, trials: int, vary: list[str], function: str | None, by: str | None
+) -> dict[str, Distribution]:
+    """The --vary distributions by key, once the request is one a study can run."""
+    if trials < 1:
+        raise UsageError(f"--trials {trials}: at least one trial", "give --trials N with N >= 1")
+    if (profile is None) == (function is None):
+        raise UsageError(
+            "a study runs a PROFILE's job or a --function, one of the two",
+            "give a simulation profile, or --function MODULE:FUNCTION without a profile",
+        )
+    parsed = dict(parse_vary(v) for v in vary)
+    if by is not None and by not in parsed:
+        raise UsageError(f"--by {by}: not a varied key", f"give one of: {', '.join(parsed) or '(none)'}")
+    return parsed
+
+
+def _new_study(
+    base: Path | None,
+    function: str | None,
+    job: str,
+    seed: int,
+    trials: int,
+    parsed: dict[str, Distribution],
+    run_id: str,
+    draws: list[tuple[int, dict[str, Any]]],
+) -> dict[str, Any]:
+    """``study.json`` before any trial ran: what was asked, and every trial pending."""
+    return {
+        "schema": STUDY_SCHEMA,
+        "profile": str(base) if base is not None else None,
+        "function": function,
+        "job": job,
+        "seed": seed,
+        "trials_requested": trials,
+        "vary": {k: d.text.split("=", 1)[1].strip() for k, d in parsed.items()},
+        "units": {k: d.unit for k, d in parsed.items()},
+        "run": run_id,
+        "trials": {
+            str(i): {"trial": i, "seed": s, "values": v, "status": "pending"}
+            for i, (s, v) in enumerate(draws)
+        },
+    }
 
 
 def _prepare_profile(base: Path, parsed: dict, seed: int, trials: int, reports: bool):

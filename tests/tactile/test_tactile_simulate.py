@@ -34,3 +34,17 @@ def test_simulation_input_errors() -> None:
         track_seam(seam, seam, rate_hz=0.0, render=False)
     with pytest.raises(DataError):
         track_seam(seam, np.zeros((1, 3)), render=False)
+
+
+def test_options_object_and_keywords_run_the_same_simulation() -> None:
+    from weldcell.plugins.tactile.simulate import SimulationOptions, simulate_tracking
+
+    seam = curved_seam(radius=0.06, angle=0.4, lead_in=0.01)
+    plan = planned_path_with_error(seam, offset=0.002, drift=0.01, side="right", seed=2)
+    a = track_seam(seam, plan, render=False, seed=2, tag_gain_error=0.03, max_time=3.0)
+    b = simulate_tracking(
+        seam, plan, SimulationOptions(render=False, seed=2, tag_gain_error=0.03, max_time=3.0)
+    )
+    assert np.array_equal(a.refined_path, b.refined_path) and np.array_equal(a.twist, b.twist)
+    assert a.metrics == b.metrics and a.stop_reason == b.stop_reason
+    assert a.t[-1] <= 3.0 + 1e-9
