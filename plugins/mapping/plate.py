@@ -1,39 +1,43 @@
 """Measuring a fixed-size steel plate in the map (the paper's AE, §III-B): its four top corners from the
-depth pixels of the key frames that saw it, with each pixel's own noise.
+depth pixels of the key frames that saw it.
 
-Why not a rectangle around the region's points: a plate on a work stand is seen from a camera only a
-little above it, so its top face is seen at grazing incidence (80-86° at 1.7-2.5 m from a camera 0.2 m
-above the plate). A stereo depth error is along the viewing ray, there nearly horizontal and ten times
-the head-on error (σ_z / cos θ): the top face's points smear 5-10 cm across the plate's far edge, and a
-percentile box around them is as wrong. The side faces, seen head-on, are precise to σ_z. So every
-pixel keeps its ray and its noise (the camera's model: σ_z = ``depth_noise``·z², grown by 1/cos θ, θ from
-the depth image's normals, snapped to the vertical within 45° of it; across the ray 0.1 px), and along
-each axis of the plate the
+The measurement (:func:`plate_corners_ml`) fits the plate's box to the key frames' depth images by
+analysis by synthesis (:mod:`~weldcell.plugins.mapping.plate_fit`: the box rendered into every key frame,
+depth and silhouette compared pixel by pixel). It starts from a measurement on the points alone
+(:func:`plate_corners_points`): a plate on a work stand is seen from a camera only a little above it, its
+top face at grazing incidence (80-89°); a stereo depth error is along the viewing ray, there nearly
+horizontal and up to ten times the head-on error (σ_z / cos θ), so every pixel keeps its ray and its
+noise (the camera's model: σ_z = ``depth_noise``·z², grown by 1/cos θ, θ from the depth image's normals,
+snapped to the vertical within 45° of it; across the ray 0.1 px), and along each axis of the plate the
 extent [a, b] is the maximum-likelihood interval of points spread uniformly on [a, b], each seen with its
-own Gaussian noise along that axis: precise points fix an edge, noisy points only weakly. The plate's
-yaw is the one of highest likelihood within ±12° of the minimum-area rectangle of the precise half.
-Measured effect and weak points (uniform-spread assumption, few distant views): docs/methods/mapping.md.
+own Gaussian noise; the yaw the one of highest likelihood within ±12° of the minimum-area rectangle of
+the precise half. That uniform spread does not hold at 1-7° above the top face (the side faces crowd
+the near edge, the far part thins out): on its own it slides the plate towards the camera by 2-14 cm at
+VGA, which the box fit removes. Measured effect: docs/methods/mapping.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr
+from weldcell.plugins.mapping.plate_fit import BoxFit, PlateView, crop_view, fit_box, params_from_corners
 
 
 @dataclass
 class PlateObservations:
     """Depth pixels of a region in the world frame: points (N, 3), unit viewing rays (N, 3), the depth
-    noise along each ray ``sigma_ray`` (N,) and the error across it ``sigma_lat`` (N,), metres."""
+    noise along each ray ``sigma_ray`` (N,) and the error across it ``sigma_lat`` (N,), metres; and per
+    key frame the depth image around the region with its pose (``views``: what the box fit renders into)."""
 
     points: np.ndarray
     rays: np.ndarray
     sigma_ray: np.ndarray
     sigma_lat: np.ndarray
+    views: list[PlateView] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -73,16 +77,18 @@ def frame_observations(depth, K, T_world_cam, box_min, box_max, depth_noise: flo
     inb = np.all((P >= box_min) & (P <= box_max), axis=1)
     sig = depth_noise * zz**2 / np.maximum(cos, MIN_COS)
     lat = LATERAL_PX * zz / K.fx
-    return PlateObservations(P[inb], ray_c[inb] @ R.T, sig[inb], lat[inb])
+    view = crop_view(depth, K, T_world_cam, box_min, box_max, depth_noise)
+    return PlateObservations(P[inb], ray_c[inb] @ R.T, sig[inb], lat[inb], [view] if view is not None else [])
 
 
 def merge(obs: list[PlateObservations]) -> PlateObservations:
     """The observations of several key frames as one set (an empty set for none)."""
     if not obs:
         return PlateObservations(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
-    return PlateObservations(
-        *(np.concatenate([getattr(o, f) for o in obs]) for f in ("points", "rays", "sigma_ray", "sigma_lat"))
+    arrays = (
+        np.concatenate([getattr(o, f) for o in obs]) for f in ("points", "rays", "sigma_ray", "sigma_lat")
     )
+    return PlateObservations(*arrays, [v for o in obs for v in o.views])
 
 
 def _interval_ml(x: np.ndarray, s: np.ndarray) -> tuple[float, float, float]:
@@ -113,11 +119,35 @@ def _top_height(z: np.ndarray, sv: np.ndarray, band: float) -> float:
     return float(np.sum(w * z[m]) / np.sum(w))
 
 
+def plate_fit(
+    obs: PlateObservations, top_band: float = 0.015, yaw_scan: float = np.radians(12)
+) -> BoxFit | None:
+    """The plate's box fitted to the key frames' depth images (:func:`~.plate_fit.fit_box`), started from
+    the points' measurement (:func:`plate_corners_points`) and its labels grown by the median horizontal
+    smear of the points; None without enough points. ``ok`` False (with the reason) when the box is not
+    determined by the views: the caller reports it, it does not guess."""
+    c0 = plate_corners_points(obs, top_band, yaw_scan)
+    if c0 is None:
+        return None
+    smear = float(np.median(obs.sigma_ray * np.linalg.norm(obs.rays[:, :2], axis=1)))
+    return fit_box(obs.views, params_from_corners(c0, 0.0), smear)
+
+
 def plate_corners_ml(
     obs: PlateObservations, top_band: float = 0.015, yaw_scan: float = np.radians(12)
 ) -> np.ndarray | None:
-    """(4, 3) top corners of a plate lying flat (world z up, gravity-aligned), or None with too few
-    points. See the module docstring."""
+    """(4, 3) top corners of a plate lying flat (world z up, gravity-aligned) from the box fitted to the
+    key frames' depth (:func:`plate_fit`); None when the plate is not measured (too few points, one key
+    frame, an axis seen only along the line of sight)."""
+    fit = plate_fit(obs, top_band, yaw_scan)
+    return fit.corners if fit is not None and fit.ok else None
+
+
+def plate_corners_points(
+    obs: PlateObservations, top_band: float = 0.015, yaw_scan: float = np.radians(12)
+) -> np.ndarray | None:
+    """(4, 3) top corners from the points alone (each axis the maximum-likelihood interval of points
+    spread uniformly over it; the box fit's start), or None with too few points."""
     if len(obs) < 30:
         return None
     P, r, sr, sl = obs.points, obs.rays, obs.sigma_ray, obs.sigma_lat
