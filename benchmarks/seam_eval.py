@@ -32,8 +32,7 @@ from weldcell.testing.seam_cases import JOINT_KINDS, SeamCase, make_case, score_
 
 def run_method(case: SeamCase) -> list[tuple[np.ndarray, np.ndarray, bool]]:
     """The default denoise + seam stages on the case's cloud: [(points, approach, closed)]."""
-    meta = {} if case.viewpoints is None else {"viewpoints": case.viewpoints.tolist()}
-    cloud = PointCloud(case.points, frame="base", meta=meta)
+    cloud = PointCloud(case.points, frame="base", viewpoints=case.viewpoints)
     clean = BilateralDenoiser(BilateralSettings())(cloud)
     ex = EdgeSeamExtractor(EdgeSeamSettings())(clean)
     return [(s.points, s.normals, s.closed) for s in ex.seams]

@@ -17,8 +17,8 @@ from weldcell.testing.seam_cases import make_case
 
 def _ratio(index: int) -> tuple[str, float]:
     case = make_case(index, 0)
-    meta = {} if case.viewpoints is None else {"viewpoints": case.viewpoints.tolist()}
-    clean = BilateralDenoiser(BilateralSettings())(PointCloud(case.points, frame="base", meta=meta))
+    cloud = PointCloud(case.points, frame="base", viewpoints=case.viewpoints)
+    clean = BilateralDenoiser(BilateralSettings())(cloud)
     fine, coarse = sampling_spacings(clean.points)
     return case.scanner, coarse / fine
 

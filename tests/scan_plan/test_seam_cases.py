@@ -101,8 +101,8 @@ SUBSET = {
 @pytest.mark.parametrize("index", sorted(SUBSET))
 def test_fast_subset_does_not_regress(index):
     case = make_case(index)
-    meta = {} if case.viewpoints is None else {"viewpoints": case.viewpoints.tolist()}
-    clean = BilateralDenoiser(BilateralSettings())(PointCloud(case.points, frame="base", meta=meta))
+    cloud = PointCloud(case.points, frame="base", viewpoints=case.viewpoints)
+    clean = BilateralDenoiser(BilateralSettings())(cloud)
     ex = EdgeSeamExtractor(EdgeSeamSettings())(clean)
     sc = score_case(case, [(s.points, s.normals, s.closed) for s in ex.seams])
     assert sc.f1 >= SUBSET[index] - 0.03, (case.name, sc)

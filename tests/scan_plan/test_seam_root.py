@@ -19,8 +19,8 @@ from weldcell.testing.seam_cases import make_case, score_case
 def _run(index: int):
     """Case ``index`` of the evaluation set (seed 0) through the default denoise + seam stages, scored."""
     case = make_case(index, 0)
-    meta = {} if case.viewpoints is None else {"viewpoints": case.viewpoints.tolist()}
-    clean = BilateralDenoiser(BilateralSettings())(PointCloud(case.points, frame="base", meta=meta))
+    cloud = PointCloud(case.points, frame="base", viewpoints=case.viewpoints)
+    clean = BilateralDenoiser(BilateralSettings())(cloud)
     ex = EdgeSeamExtractor(EdgeSeamSettings())(clean)
     return case, score_case(case, [(s.points, s.normals, s.closed) for s in ex.seams])
 

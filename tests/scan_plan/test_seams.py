@@ -507,7 +507,7 @@ def test_multi_view_normals_face_a_camera_that_sees_the_point():
     az = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     V = np.column_stack([0.32 * np.cos(az), 0.32 * np.sin(az), np.full(8, 0.38)])
     N = out * rng.choice([-1.0, 1.0], (len(P), 1))  # unoriented
-    No = oriented_normals(PointCloud(P, normals=N, meta={"viewpoints": V.tolist()}))
+    No = oriented_normals(PointCloud(P, normals=N, viewpoints=V))
     assert np.mean(np.einsum("ij,ij->i", No, out) > 0) > 0.99
 
 
@@ -655,8 +655,7 @@ def _ring_scan(kind: str, decimation: int = 2) -> tuple[PointCloud, object]:
     T = frame_from_axes([1.0, 0.0, 0.0], [0.0, 0.0, -1.0], top)
     parts.append(cam.render(T, rng=rng).to_points() @ T[:3, :3].T + top)
     P = voxel_downsample(np.vstack(parts), voxel_size=VOXEL)
-    meta = {"viewpoints": [e.tolist() for e in [*eyes, top]]}
-    return PointCloud(P, frame="base", meta=meta), truth
+    return PointCloud(P, frame="base", viewpoints=np.array([*eyes, top], dtype=float)), truth
 
 
 def test_thin_lap_joint_scanned_by_the_d415_is_one_seam_at_its_root():
@@ -718,7 +717,7 @@ def test_y_pipe_scanned_and_merged_like_table_1_is_one_seam_on_the_root():
     poses.append(frame_from_axes([1.0, 0.0, 0.0], [0.0, 0.0, -1.0], c + [0.0, 0.0, 0.5]))
     scans = [PosedScan(PointCloud(cam.render(T, rng=rng).to_points(), frame="camera"), T, 0.0) for T in poses]
     rec = reconstruct(scans, np.eye(4), ReconstructOptions(voxel=VOXEL, max_correspondence_distance=0.005))
-    rec.cloud.meta["viewpoints"] = [T[:3, 3].tolist() for T in poses]
+    rec.cloud.viewpoints = np.array([T[:3, 3] for T in poses])
     res = EdgeSeamExtractor(EdgeSeamSettings())(BilateralDenoiser(BilateralSettings())(rec.cloud))
     assert len(res.seams) == 1 and res.seams[0].closed
     s = res.seams[0]

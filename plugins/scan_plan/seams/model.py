@@ -31,6 +31,11 @@ BEHIND_TOL = 0.15
 #: (position) radius
 THIRD_SURFACE = 0.1
 CORE_FRACTION = 0.5
+#: ... and when at least this share of those core points lies more than BEHIND_TOL x the radius in front
+#: of its side's plane (a step: a thin lap plate's top beside its edge face; synthetic 2.5 mm lap: 15 %),
+#: its fits start from each side's majority layer (``sides._step_layer``). Noise alone puts a negligible
+#: share there (the band is ~3 noise sigmas at the 6 mm side radius of a 0.3 mm-noise cloud)
+STEP_SHARE = 0.05
 #: acute creases (included angle below TOE_INCLUDED) whose position at the approach and the side radius
 #: differ by more than TOE_SHIFT (m) take their position from planes within TOE_RADIUS x the side radius
 #: (55 deg: the Y-pipe's 45 deg toe, not a 60 deg V-groove, whose root faces also make the two positions
@@ -38,8 +43,10 @@ CORE_FRACTION = 0.5
 TOE_INCLUDED = np.deg2rad(55.0)
 TOE_SHIFT = 3e-4
 TOE_RADIUS = 2.0 / 3.0
-#: a node whose side-radius planes leave out more than this fraction of its points as lying behind
-#: the other side's plane is a convex edge, not a joint (the Y-pipe's branch rim: 0.43; a lap joint: 0)
+#: a node with more than this share of its side-radius points behind one side's plane and not in front
+#: of the other (``refinement._convex_share``) is a convex edge, not a joint (the Y-pipe's branch rim:
+#: 0.43 as the share of all left-out points, before 2026-11-25; a synthetic block edge 0.43-0.82; lap
+#: joints 0 -- also 2-3 mm thin ones, whose plate top lies in front of the lower plate's plane)
 CONVEX_DROPPED = 0.3
 #: below this many rows (a trace step) LAPACK's eigh is faster than the vectorised closed form
 SMALL_BATCH = 16

@@ -53,7 +53,8 @@ def _refine_on_sides(
     min_side_fraction: float = 0.2,
     query: tuple[np.ndarray, np.ndarray] | None = None,
     min_included_angle: float = MIN_INCLUDED_ANGLE,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    convex_share: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Snap seam nodes onto the intersection line of the two side planes fitted around them.
 
     The planes are fitted to the (at most ``k`` nearest) cloud points within ``radius`` of each node.
@@ -63,7 +64,8 @@ def _refine_on_sides(
     ``min_crease_angle``, the included angle at least ``min_included_angle``, the points of each side lie
     in front of the other side's plane (concave) and both sides hold at least ``min_side_fraction`` of
     the points (a real joint has surface on both sides; the curled, noisy border of a scan has a few
-    points only on its "second side")."""
+    points only on its "second side"). Also returns the share of each node's points left out of the
+    plane fits and, with ``convex_share``, the share that marks a convex edge (:func:`_convex_share`)."""
     _, valid0, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
     # planes n . (x - X) = d; points behind the other side's plane (a third surface) left out
     na, da, nbv, db, ca, cb, valid = _fit_two_planes(Q, valid0, na, nbv, in_a, behind_tol=BEHIND_TOL * radius)
@@ -84,7 +86,22 @@ def _refine_on_sides(
     step[~ok] = 0.0
     too_far = np.linalg.norm(step, axis=1) > radius
     step[too_far] = 0.0
-    return X - step, -_unit(na + nbv), ok & ~too_far, crease, dropped
+    out = (X - step, -_unit(na + nbv), ok & ~too_far, crease, dropped)
+    if convex_share:
+        return (*out, _convex_share(valid0, ra, rb, BEHIND_TOL * radius))
+    return out
+
+
+def _convex_share(valid: np.ndarray, ra: np.ndarray, rb: np.ndarray, tol: float) -> np.ndarray:
+    """Per row, the share of the points (of ``valid``) that make the crease convex: more than ``tol``
+    behind one side's plane and not more than ``tol`` in front of the other (signed distances ``ra``,
+    ``rb``). Beyond a convex edge (a pipe end's rim) each side runs on behind the other side's plane
+    while staying on its own. A narrow third face parallel to one side -- the top of a thin lap joint's
+    upper plate beyond its 2-3 mm edge face -- lies *in front of* that side's plane by the plate's
+    thickness: it is left out of the plane fits too, but it is no sign of a convex edge."""
+    behind = (ra < -tol) | (rb < -tol)
+    front = (ra > tol) | (rb > tol)
+    return (valid & behind & ~front).sum(1) / np.maximum(valid.sum(1), 1)
 
 
 def _root_opening(
@@ -300,13 +317,14 @@ def _refine_nodes(
         P, N, tree, X, approach_radius, min_crease_angle, query=query
     )
     if approach_radius > side_radius:
-        Xs, As, ok_s, _, dropped_s = _refine_on_sides(
-            P, N, tree, X, side_radius, min_crease_angle, query=query
+        Xs, As, ok_s, _, _, convex_s = _refine_on_sides(
+            P, N, tree, X, side_radius, min_crease_angle, query=query, convex_share=True
         )
         # a convex edge whose noise leaves a small concave lip (a pipe's end rim): most of the points
-        # lie behind the other side's plane even at the side radius, where a narrow face's third
-        # surface (the lap joint's upper plate, 12-15 % at the approach radius) is out of reach
-        ok &= dropped_s <= CONVEX_DROPPED
+        # lie behind the other side's plane even at the side radius; a narrow face's third surface (a
+        # lap plate's top, in reach of the side radius when the plate is 2-3 mm thin) lies in front of
+        # the lower plate's plane and does not count (seams doc, "Issue 16, sixth session")
+        ok &= convex_s <= CONVEX_DROPPED
         both = ok & ok_s
         # an acute crease whose two position estimates disagree has curved walls (the Y-pipe's toe): its
         # plane intersection at side_radius still lies inside the curve: position from smaller planes

@@ -3,6 +3,8 @@ fitted to the points on either side (their intersection line and bisector place 
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -11,7 +13,7 @@ from ..cloud_numerics import (
     masked_covariance,
     smallest_eigvec,
 )
-from .model import BEHIND_TOL, CORE_FRACTION, SMALL_BATCH, THIRD_SURFACE, _unit
+from .model import BEHIND_TOL, CORE_FRACTION, SMALL_BATCH, STEP_SHARE, THIRD_SURFACE, _unit
 
 
 def _dot3(U: tuple[np.ndarray, ...], v: np.ndarray) -> np.ndarray:
@@ -120,11 +122,46 @@ def _fit_two_planes(
     if not len(i):
         return fit
     Ui = tuple(u[i] for u in U)
-    again = _fit_planes_from(Ui, valid[i], near, n_a[i], n_b[i], in_a[i], iterations + 1, behind_tol)
+    near, step = _step_layer(Ui, near, n_a[i], n_b[i], in_a[i], behind_tol)
+    again = _fit_planes_from(
+        Ui, valid[i], near, n_a[i], n_b[i], in_a[i], iterations + 1, behind_tol, sides=in_a[i], rows=step
+    )
     fit = tuple(f.copy() for f in fit)
     for whole, part in zip(fit, again, strict=True):
         whole[i] = part
     return fit
+
+
+def _step_layer(
+    U: tuple[np.ndarray, ...],
+    use: np.ndarray,
+    n_a: np.ndarray,
+    n_b: np.ndarray,
+    in_a: np.ndarray,
+    tol: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows whose normal split holds a *step*: at least ``STEP_SHARE`` of the points of ``use`` lie more
+    than ``tol`` in front of their side's plane (taken with the split's mean normal through the median
+    offset of the side's points: its majority layer). Returns the points to start the plane fits from
+    -- on step rows those within ``tol`` of their side's plane and not more than ``tol`` behind the other
+    side's, ``use`` elsewhere -- and the step rows.
+
+    The normal split puts a third surface parallel to one side, on the air side of it, on that side --
+    the top of a thin lap plate, 2-3 mm above the lower plate beyond its edge face -- and a PCA plane
+    through both layers is tilted by tens of degrees (synthetic 2.5 mm lap: 30-45 deg), a local minimum
+    the trimmed fits do not leave. What lies beyond a groove's walls (root faces, a backing bar seen
+    through the gap) is *behind* them, no step: those rows keep their fits (Table II's groove does)."""
+    ra, rb = _dot3(U, n_a), _dot3(U, n_b)
+    with warnings.catch_warnings():  # a side without points: NaN offsets, no step row
+        warnings.simplefilter("ignore", RuntimeWarning)
+        da = np.nanmedian(np.where(use & in_a, ra, np.nan), axis=1)[:, None]
+        db = np.nanmedian(np.where(use & ~in_a, rb, np.nan), axis=1)[:, None]
+    ra, rb = ra - da, rb - db
+    own, other = np.where(in_a, ra, rb), np.where(in_a, rb, ra)
+    keep = use & (np.abs(own) <= tol) & (other >= -tol)
+    step = (use & (own > tol)).sum(1) >= STEP_SHARE * np.maximum(use.sum(1), 1)
+    step &= ((keep & in_a).sum(1) >= 3) & ((keep & ~in_a).sum(1) >= 3)
+    return np.where(step[:, None], keep, use), step
 
 
 def _kept(valid: np.ndarray, ra: np.ndarray, rb: np.ndarray, tol: float) -> np.ndarray:
@@ -145,10 +182,16 @@ def _fit_planes_from(
     iterations: int,
     behind_tol: float | None,
     trim: bool = True,
+    sides: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, ...]:
     """:func:`_fit_two_planes` whose first fit uses only the points ``use`` (a subset of ``valid``); with
-    ``trim``, later fits only the points :func:`_kept` by ``behind_tol``. The last item returned is the
-    mask of the points kept by the final planes (``valid`` when ``behind_tol`` is None)."""
+    ``trim``, later fits only the points :func:`_kept` by ``behind_tol`` and, with ``sides`` (the normal
+    split), only those whose nearer plane is their normal's side (a third surface's strip next to the
+    crease, e.g. a thin lap plate's top within ``behind_tol`` of its edge face, is nearer the edge face's
+    plane but faces like the lower plate) -- in the ``rows`` given (all by default). The last item
+    returned is the mask of the points kept by the final planes (``valid`` when ``behind_tol`` is
+    None)."""
     out, kept = [], valid
     for _ in range(iterations):
         out = []
@@ -167,5 +210,8 @@ def _fit_planes_from(
         if behind_tol is not None:
             kept = _kept(valid, ra, rb, behind_tol)
             use = kept if trim else valid
+            if trim and sides is not None:
+                agree = in_a == sides
+                use = use & (agree if rows is None else agree | ~rows[:, None])
     (na, da, ca), (nb, db, cb) = out
     return na, da, nb, db, ca, cb, kept
