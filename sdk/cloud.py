@@ -161,6 +161,18 @@ class PointCloud:
     def __len__(self) -> int:
         return len(self.points)
 
+    def sensor_viewpoints(self) -> np.ndarray | None:
+        """:attr:`viewpoints`; for code written before they were typed, ``meta["viewpoints"]`` set after
+        the cloud was built is still read (with a :class:`DeprecationWarning`), never silently ignored."""
+        if self.viewpoints is None and "viewpoints" in self.meta:
+            warnings.warn(
+                "PointCloud.meta['viewpoints'] is deprecated: set cloud.viewpoints (or use with_viewpoints)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            return _as_viewpoints(self.meta["viewpoints"])
+        return self.viewpoints
+
     @property
     def neighbours(self) -> NeighbourTable | None:
         """The neighbour table attached by :meth:`with_neighbours`, while it belongs to exactly these

@@ -64,8 +64,8 @@ def denoised_scan(scan: PointCloud, out: PointCloud) -> PointCloud:
             f"the denoise stage returned a cloud in frame '{out.frame}' for one in '{scan.frame}'",
             "a denoise stage keeps the frame: build its output with cloud.with_points(points, normals=...)",
         )
-    if out.viewpoints is None and scan.viewpoints is not None:
-        out = out.with_viewpoints(scan.viewpoints)
+    if out.sensor_viewpoints() is None and scan.sensor_viewpoints() is not None:
+        out = out.with_viewpoints(scan.sensor_viewpoints())
     return out
 
 

@@ -171,7 +171,7 @@ def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
     the surface; such points face the camera that sees them most squarely among those that can see
     them, and points no camera sees keep the nearest camera.
     """
-    V = cloud.viewpoints
+    V = cloud.sensor_viewpoints()
     if cloud.normals is None or V is None or len(V) == 0:
         return None
     P, N = cloud.points, cloud.normals
@@ -282,7 +282,7 @@ class EdgeSeamExtractor:
             spacing=self.s.spacing,
             wall_radius=self.s.wall_radius,
             neighbours=cloud.neighbours,
-            viewpoints=cloud.viewpoints,
+            viewpoints=cloud.sensor_viewpoints(),
         )
 
 

@@ -146,6 +146,22 @@ def test_viewpoints_are_checked_and_the_former_meta_key_still_works(scan):
     assert old.meta == {"source": "x"}
 
 
+def test_viewpoints_written_into_meta_after_the_cloud_was_built_still_reach_the_seam_stage(scan, monkeypatch):
+    late = PointCloud(scan.points, normals=None, frame="base")
+    late.meta["viewpoints"] = EYES.tolist()  # code written before the viewpoints were typed
+    seen = {}
+
+    def spy(points, normals=None, settings=None, **kw):
+        seen["viewpoints"] = kw.get("viewpoints")
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(seams_pkg, "extract_seams", spy)
+    warns = pytest.warns(DeprecationWarning, match="cloud.viewpoints")
+    with warns, pytest.raises(RuntimeError, match="stop"):
+        EdgeSeamExtractor(EdgeSeamSettings())(late)
+    np.testing.assert_array_equal(seen["viewpoints"], EYES)
+
+
 @pytest.mark.parametrize("name", ["model.ply", "model.pcd"])
 @pytest.mark.parametrize("binary", [True, False])
 def test_cloud_files_keep_the_viewpoints_and_stay_readable(tmp_path, scan, name, binary):
