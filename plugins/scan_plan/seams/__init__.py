@@ -51,10 +51,12 @@ importable from the former single module ``seams.py`` is importable from this pa
 from __future__ import annotations
 
 from .candidates import (  # noqa: F401
+    Classifying,
     classify_edges,
     point_normals,
 )
 from .chaining import (  # noqa: F401
+    Bridging,
     _bin_means,
     _cluster_pieces,
     _end_directions,
@@ -130,6 +132,7 @@ from .pipeline import (  # noqa: F401
     extract_seams,
 )
 from .refinement import (  # noqa: F401
+    SideLimits,
     _curved_wall_nodes,
     _cut_end_corners,
     _mean_where,
@@ -161,6 +164,7 @@ from .support import (  # noqa: F401
     support_plane,
 )
 from .tracing import (  # noqa: F401
+    Growing,
     _blocking_nodes,
     _cloud_ends,
     _concat,

@@ -3,6 +3,8 @@ joint class (concave / groove / convex / boundary / weak)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -65,23 +67,34 @@ def point_normals(
     return n
 
 
+@dataclass(frozen=True)
+class Classifying:
+    """Settings of :func:`classify_edges` (angles in rad)."""
+
+    k: int = 32  # at most this many neighbours per candidate
+    min_crease_angle: float = np.deg2rad(35.0)  # sides differing less are no crease
+    groove_max_angle: float = np.deg2rad(75.0)  # included angles below this are grooves
+    boundary_shift: float = 0.25  # centroid shift (x radius) of a one-sided neighbourhood
+    min_side_fraction: float = 0.2  # share of the neighbours each side of a concave crease holds
+    max_incidence: float = np.deg2rad(75.0)  # each side faces some camera within this
+    min_included_angle: float = MIN_INCLUDED_ANGLE  # narrower "creases" are folded surfaces
+
+
 def classify_edges(
     P: np.ndarray,
     N: np.ndarray,
     tree: cKDTree,
     cand: np.ndarray,
     radius: float,
+    settings: Classifying | None = None,
     *,
-    k: int = 32,
-    min_crease_angle: float = np.deg2rad(35.0),
-    groove_max_angle: float = np.deg2rad(75.0),
-    boundary_shift: float = 0.25,
-    min_side_fraction: float = 0.2,
     viewpoints: np.ndarray | None = None,
-    max_incidence: float = np.deg2rad(75.0),
-    min_included_angle: float = MIN_INCLUDED_ANGLE,
+    **overrides: float,
 ):
     """Class of each candidate edge point (indices ``cand``) from its neighbourhood within ``radius``.
+
+    ``settings`` is a :class:`Classifying`; keyword ``overrides`` replace its fields (e.g.
+    ``min_crease_angle=0.6``).
 
     * sides: 2-means split of the oriented neighbour normals, refined by a two-plane fit -> ``n_a``, ``n_b``;
     * ``weak``: the sides differ by less than ``min_crease_angle`` and the centroid is not shifted
@@ -102,8 +115,10 @@ def classify_edges(
 
     Returns ``labels`` (M,) and the approach directions ``-(n_a + n_b)/|.|`` (M, 3).
     """
+    c = replace(settings if settings is not None else Classifying(), **overrides)
+    min_crease_angle, groove_max_angle = c.min_crease_angle, c.groove_max_angle
     X = P[cand]
-    idx, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k)
+    idx, valid, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, c.k)
     na, da, nbv, db, _, _, _ = _fit_two_planes(Q, valid, na, nbv, in_a)
     # re-split by plane distance, then: is each side in front of (concave) or behind (convex) the other?
     ra = _dot3(Q, na) - da[:, None]
@@ -120,25 +135,32 @@ def classify_edges(
     shift = np.linalg.norm(v - np.einsum("ij,ij->i", v, bis)[:, None] * bis, axis=1) / radius
     labels = np.full(len(cand), WEAK, dtype=np.int8)
     flat = crease < min_crease_angle
-    labels[flat & (shift > boundary_shift)] = BOUNDARY
+    labels[flat & (shift > c.boundary_shift)] = BOUNDARY
     labels[~flat & (front <= 0)] = CONVEX
     concave = ~flat & (front > 0)
     # a concave crease needs real surface on both sides: a scan border that curls (grazing views, noise)
     # has a narrow, sparse "second side" -> boundary
     na_cnt, nb_cnt = on_a.sum(1), on_b.sum(1)
-    one_sided = np.minimum(na_cnt, nb_cnt) < min_side_fraction * np.maximum(na_cnt + nb_cnt, 1)
+    one_sided = np.minimum(na_cnt, nb_cnt) < c.min_side_fraction * np.maximum(na_cnt + nb_cnt, 1)
     if viewpoints is not None and len(viewpoints):
-        # ... and both sides must have been seen by some camera at less than max_incidence (a side that
-        # faces away from every camera, or is seen only at grazing incidence, is not measured surface)
-        V = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
-        view = V[None, :, :] - X[:, None, :]
-        view /= np.maximum(np.linalg.norm(view, axis=2, keepdims=True), 1e-12)
-        cos_min = np.cos(max_incidence)
-        seen_a = (np.einsum("bvj,bj->bv", view, na) >= cos_min).any(axis=1)
-        seen_b = (np.einsum("bvj,bj->bv", view, nbv) >= cos_min).any(axis=1)
-        one_sided |= ~(seen_a & seen_b)
-    one_sided |= np.pi - crease < min_included_angle  # folded onto itself: no torch fits in
+        one_sided |= ~_both_sides_seen(X, na, nbv, viewpoints, c.max_incidence)
+    one_sided |= np.pi - crease < c.min_included_angle  # folded onto itself: no torch fits in
     labels[concave & one_sided] = BOUNDARY
     concave &= ~one_sided
     labels[concave] = np.where(np.pi - crease[concave] < groove_max_angle, GROOVE, CONCAVE)
     return labels, -bis
+
+
+def _both_sides_seen(
+    X: np.ndarray, na: np.ndarray, nb: np.ndarray, viewpoints: np.ndarray, max_incidence: float
+) -> np.ndarray:
+    """Whether both sides (normals ``na``, ``nb``) of each point ``X`` were seen by some camera at
+    ``viewpoints`` at less than ``max_incidence``: a side that faces away from every camera, or is seen
+    only at grazing incidence, is not measured surface."""
+    V = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
+    view = V[None, :, :] - X[:, None, :]
+    view /= np.maximum(np.linalg.norm(view, axis=2, keepdims=True), 1e-12)
+    cos_min = np.cos(max_incidence)
+    seen_a = (np.einsum("bvj,bj->bv", view, na) >= cos_min).any(axis=1)
+    seen_b = (np.einsum("bvj,bj->bv", view, nb) >= cos_min).any(axis=1)
+    return seen_a & seen_b

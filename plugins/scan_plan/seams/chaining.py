@@ -3,7 +3,7 @@ spanning-tree diameter (side rows and spurs cut off), and bridging of collinear 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse.csgraph import dijkstra, minimum_spanning_tree
@@ -187,69 +187,126 @@ def _gap_nodes(a: np.ndarray, b: np.ndarray, Aa: np.ndarray, Ab: np.ndarray, spa
     return a + f * (b - a), _unit(Aa + f * (Ab - Aa))
 
 
+@dataclass(frozen=True)
+class Bridging:
+    """Settings of :func:`bridge_pieces` (lengths in m, angles in rad)."""
+
+    max_gap: float  # longest gap bridged
+    max_angle: float  # end directions anti-parallel, and the gap along them, within this
+    spacing: float  # node step across the gap
+    side_radius: float  # radius of the side-plane fits that verify the gap
+    min_crease_angle: float  # the joint's smallest crease angle in those fits
+    max_approach_angle: float = float(np.deg2rad(45.0))  # the two ends' approach directions agree within this
+    min_support: float = 0.5  # share of gap nodes that must show two side planes
+    approach_radius: float = 0.0  # radius of the approach fits on the gap nodes (0: ``side_radius``)
+
+
+@dataclass(frozen=True)
+class _Bridger:
+    """The cloud and the settings of :func:`bridge_pieces`: the tests and the gap filling it applies."""
+
+    P: np.ndarray
+    N: np.ndarray
+    tree: cKDTree
+    cfg: Bridging
+
+    def compatible(self, a, b, da, db, aa, ab) -> bool:
+        """Ends ``a``, ``b`` (outward directions ``da``, ``db``, approaches ``aa``, ``ab``) close enough,
+        anti-parallel, with approaches that agree and (beyond two nodes) a gap that runs along both."""
+        c = self.cfg
+        cos_t = np.cos(c.max_angle)
+        g = b - a
+        dist = float(np.linalg.norm(g))
+        if dist > c.max_gap or -float(da @ db) < cos_t or float(aa @ ab) < np.cos(c.max_approach_angle):
+            return False
+        if dist > 2.0 * c.spacing:
+            u = g / dist
+            if float(da @ u) < cos_t or -float(db @ u) < cos_t:
+                return False
+        return True
+
+    def verified(self, a, b, Aa, Ab) -> bool:
+        """The joint is there in the gap: at least ``min_support`` of its nodes show two side planes."""
+        c = self.cfg
+        Xg, _ = _gap_nodes(a, b, Aa, Ab, c.spacing)
+        if len(Xg) == 0:
+            return True
+        fit = _refine_on_sides(self.P, self.N, self.tree, Xg, c.side_radius, c.min_crease_angle)
+        return float(fit[2].mean()) >= c.min_support
+
+    def fill(self, a, b, Aa, Ab):
+        """The gap's nodes snapped onto their side planes: (X, A, ok, crease), or None for no gap node
+        (the approach stays interpolated where no two planes were fitted)."""
+        c = self.cfg
+        Xg, Ag = _gap_nodes(a, b, Aa, Ab, c.spacing)
+        if not len(Xg):
+            return None
+        Xg, Af, okg, crg = _refine_nodes(
+            self.P, self.N, self.tree, Xg, c.side_radius, c.approach_radius, c.min_crease_angle
+        )
+        return Xg, np.where(okg[:, None], Af, Ag), okg, crg
+
+
 def bridge_pieces(
     P: np.ndarray,
     N: np.ndarray,
     tree: cKDTree,
     pieces: list[_Piece],
-    *,
-    max_gap: float,
-    max_angle: float,
-    spacing: float,
-    side_radius: float,
-    min_crease_angle: float,
-    max_approach_angle: float = np.deg2rad(45.0),
-    min_support: float = 0.5,
-    approach_radius: float = 0.0,
+    settings: Bridging | None = None,
+    **overrides: float,
 ) -> list[_Piece]:
     """Join open pieces whose ends are close and whose directions agree (gap bridging).
 
+    ``settings`` is a :class:`Bridging`; keyword ``overrides`` replace its fields (or give them all,
+    e.g. ``bridge_pieces(P, N, tree, pieces, max_gap=0.03, max_angle=0.35, spacing=0.0015, ...)``).
     Two piece ends are linked when they are at most ``max_gap`` apart, their outward directions (chords
     over ~10 mm) are anti-parallel within ``max_angle``, the gap runs along both directions (for gaps
     longer than two nodes) within ``max_angle``, their approach directions agree within
     ``max_approach_angle``, and the joint is really there in the gap: at least ``min_support`` of the
     nodes interpolated across it show two side planes (:func:`_refine_on_sides`). Links are accepted
     greedily, shortest gap first, each end at most once and never closing a cycle between different
-    pieces; a chain whose own two ends then satisfy the same test is closed into a loop.
+    pieces (:func:`_link_ends`); a chain whose own two ends then satisfy the same test is closed into a
+    loop (:func:`_chain`).
     """
+    cfg = replace(settings, **overrides) if settings is not None else Bridging(**overrides)
+    br = _Bridger(P, N, tree, cfg)
     open_ids = [i for i, p in enumerate(pieces) if not p.closed]
     out = [p for p in pieces if p.closed]
     if not open_ids:
         return out
+    E, D, Ae = _piece_ends([pieces[i] for i in open_ids], cfg.spacing)
+    link = _link_ends(br, E, D, Ae)
+    seen = np.zeros(len(open_ids), dtype=bool)
+    for start in range(len(open_ids)):
+        if seen[start] or (link[2 * start] >= 0 and link[2 * start + 1] >= 0):
+            continue
+        out.append(_chain(br, [pieces[i] for i in open_ids], link, start, seen))
+    return out
+
+
+def _piece_ends(pieces: list[_Piece], spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Both ends of every open piece (rows 2i, 2i + 1 for start and end of piece i): positions, outward
+    directions (:func:`_end_directions` over ``max(1 cm, 3 spacing)``) and mean approach of 5 nodes."""
     tan_len = max(0.01, 3 * spacing)
     E, D, Ae = [], [], []
-    for i in open_ids:
-        p = pieces[i]
+    for p in pieces:
         d0, d1 = _end_directions(p.X, spacing, tan_len)
         m = min(len(p.X), 5)
         E += [p.X[0], p.X[-1]]
         D += [d0, d1]
         Ae += [_unit(p.A[:m].mean(0)), _unit(p.A[-m:].mean(0))]
-    E, D, Ae = np.array(E), np.array(D), np.array(Ae)
-    cos_t, cos_a = np.cos(max_angle), np.cos(max_approach_angle)
+    return np.array(E), np.array(D), np.array(Ae)
 
-    def verified(a: np.ndarray, b: np.ndarray, Aa: np.ndarray, Ab: np.ndarray) -> bool:
-        Xg, _ = _gap_nodes(a, b, Aa, Ab, spacing)
-        if len(Xg) == 0:
-            return True
-        return float(_refine_on_sides(P, N, tree, Xg, side_radius, min_crease_angle)[2].mean()) >= min_support
 
-    def compatible(ea: int, eb: int, a: np.ndarray, b: np.ndarray, da: np.ndarray, db: np.ndarray) -> bool:
-        g = b - a
-        dist = float(np.linalg.norm(g))
-        if dist > max_gap or -float(da @ db) < cos_t or float(Ae[ea] @ Ae[eb]) < cos_a:
-            return False
-        if dist > 2.0 * spacing:
-            u = g / dist
-            if float(da @ u) < cos_t or -float(db @ u) < cos_t:
-                return False
-        return True
-
-    pairs = cKDTree(E).query_pairs(max_gap, output_type="ndarray")
+def _link_ends(br: _Bridger, E: np.ndarray, D: np.ndarray, Ae: np.ndarray) -> np.ndarray:
+    """For every end, the end it is bridged to (-1: none): candidate pairs within ``max_gap`` accepted
+    shortest first when both ends are free, the pieces not yet in one chain (union-find) and the pair
+    :meth:`_Bridger.compatible` and :meth:`_Bridger.verified`."""
+    pairs = cKDTree(E).query_pairs(br.cfg.max_gap, output_type="ndarray")
     pairs = pairs[pairs[:, 0] // 2 != pairs[:, 1] // 2]
     gaps = np.linalg.norm(E[pairs[:, 1]] - E[pairs[:, 0]], axis=1)
     link = np.full(len(E), -1)
-    parent = list(range(len(open_ids)))
+    parent = list(range(len(E) // 2))
 
     def find(i: int) -> int:
         while parent[i] != i:
@@ -261,63 +318,53 @@ def bridge_pieces(
         ea, eb = int(pairs[k, 0]), int(pairs[k, 1])
         if link[ea] >= 0 or link[eb] >= 0 or find(ea // 2) == find(eb // 2):
             continue
-        if not compatible(ea, eb, E[ea], E[eb], D[ea], D[eb]):
+        if not br.compatible(E[ea], E[eb], D[ea], D[eb], Ae[ea], Ae[eb]):
             continue
-        if not verified(E[ea], E[eb], Ae[ea], Ae[eb]):
+        if not br.verified(E[ea], E[eb], Ae[ea], Ae[eb]):
             continue
         link[ea], link[eb] = eb, ea
         parent[find(ea // 2)] = find(eb // 2)
+    return link
 
-    seen = np.zeros(len(open_ids), dtype=bool)
-    for start in range(len(open_ids)):
-        if seen[start] or (link[2 * start] >= 0 and link[2 * start + 1] >= 0):
-            continue
-        cur, entry = start, (0 if link[2 * start] < 0 else 1)
-        Xs, As, oks, crs, lab = [], [], [], [], np.zeros(6, dtype=np.int64)
-        while True:
-            seen[cur] = True
-            p = pieces[open_ids[cur]]
-            okp = p.ok if p.ok is not None else np.ones(len(p.X), dtype=bool)
-            crp = p.crease if p.crease is not None else np.zeros(len(p.X))
-            sl = slice(None) if entry == 0 else slice(None, None, -1)
-            Xc, Ac = p.X[sl], p.A[sl]
-            if Xs:
-                Xg, Ag = _gap_nodes(Xs[-1][-1], Xc[0], As[-1][-1], Ac[0], spacing)
-                if len(Xg):
-                    Xg, Af, okg, crg = _refine_nodes(
-                        P, N, tree, Xg, side_radius, approach_radius, min_crease_angle
-                    )
-                    Xs.append(Xg)
-                    As.append(np.where(okg[:, None], Af, Ag))
-                    oks.append(okg)
-                    crs.append(crg)
-            Xs.append(Xc)
-            As.append(Ac)
-            oks.append(okp[sl])
-            crs.append(crp[sl])
-            lab += p.labels
-            nxt = link[2 * cur + 1 - entry]
-            if nxt < 0:
-                break
-            cur, entry = int(nxt) // 2, int(nxt) % 2
-        X, A, ok, crease = np.vstack(Xs), np.vstack(As), np.concatenate(oks), np.concatenate(crs)
-        closed = False
-        L = float(np.linalg.norm(np.diff(X, axis=0), axis=1).sum())
-        if len(X) >= 6 and L > 4.0 * max_gap:
-            d0, d1 = _end_directions(X, spacing, tan_len)
-            a0, a1 = _unit(A[:5].mean(0)), _unit(A[-5:].mean(0))
-            Ae_save = Ae
-            Ae = np.vstack([Ae_save, a1, a0])  # compatible() looks approach up by end index
-            n = len(Ae)
-            if compatible(n - 2, n - 1, X[-1], X[0], d1, d0) and verified(X[-1], X[0], a1, a0):
-                closed = True
-                Xg, Ag = _gap_nodes(X[-1], X[0], A[-1], A[0], spacing)
-                if len(Xg):
-                    Xg, Af, okg, crg = _refine_nodes(
-                        P, N, tree, Xg, side_radius, approach_radius, min_crease_angle
-                    )
-                    X, A = np.vstack([X, Xg]), np.vstack([A, np.where(okg[:, None], Af, Ag)])
-                    ok, crease = np.concatenate([ok, okg]), np.concatenate([crease, crg])
-            Ae = Ae_save
-        out.append(_Piece(X, A, closed, lab, ok, crease))
-    return out
+
+def _chain(br: _Bridger, pieces: list[_Piece], link: np.ndarray, start: int, seen: np.ndarray) -> _Piece:
+    """The chain of open ``pieces`` that starts at piece ``start`` (a free end), following ``link``
+    (marks its pieces ``seen``), with the refined gap nodes between them; closed into a loop when it is
+    at least 6 nodes and ``4 max_gap`` long and its own ends pass the bridging tests."""
+    cur, entry = start, (0 if link[2 * start] < 0 else 1)
+    Xs, As, oks, crs, lab = [], [], [], [], np.zeros(6, dtype=np.int64)
+    while True:
+        seen[cur] = True
+        p = pieces[cur]
+        okp = p.ok if p.ok is not None else np.ones(len(p.X), dtype=bool)
+        crp = p.crease if p.crease is not None else np.zeros(len(p.X))
+        sl = slice(None) if entry == 0 else slice(None, None, -1)
+        Xc, Ac = p.X[sl], p.A[sl]
+        if Xs:
+            gap = br.fill(Xs[-1][-1], Xc[0], As[-1][-1], Ac[0])
+            if gap is not None:
+                for parts, part in zip((Xs, As, oks, crs), gap, strict=True):
+                    parts.append(part)
+        Xs.append(Xc)
+        As.append(Ac)
+        oks.append(okp[sl])
+        crs.append(crp[sl])
+        lab += p.labels
+        nxt = link[2 * cur + 1 - entry]
+        if nxt < 0:
+            break
+        cur, entry = int(nxt) // 2, int(nxt) % 2
+    X, A, ok, crease = np.vstack(Xs), np.vstack(As), np.concatenate(oks), np.concatenate(crs)
+    closed = False
+    L = float(np.linalg.norm(np.diff(X, axis=0), axis=1).sum())
+    if len(X) >= 6 and L > 4.0 * br.cfg.max_gap:
+        d0, d1 = _end_directions(X, br.cfg.spacing, max(0.01, 3 * br.cfg.spacing))
+        a0, a1 = _unit(A[:5].mean(0)), _unit(A[-5:].mean(0))
+        if br.compatible(X[-1], X[0], d1, d0, a1, a0) and br.verified(X[-1], X[0], a1, a0):
+            closed = True
+            gap = br.fill(X[-1], X[0], A[-1], A[0])
+            if gap is not None:
+                Xg, Ag, okg, crg = gap
+                X, A = np.vstack([X, Xg]), np.vstack([A, Ag])
+                ok, crease = np.concatenate([ok, okg]), np.concatenate([crease, crg])
+    return _Piece(X, A, closed, lab, ok, crease)

@@ -187,7 +187,7 @@ class EdgeScores:
     nb: Neighbourhood
 
 
-def edge_scores(
+def edge_scores(  # 11 params by design: the terms of eqs. 11-17 (m, r, sigma, floor, I_min) + a reused search
     points: np.ndarray,
     *,
     m: int = 12,

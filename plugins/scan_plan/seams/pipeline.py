@@ -11,7 +11,7 @@ from weldcell.sdk.errors import DataError
 
 from ..cloud_numerics import NeighbourTable, noise_level, sampling_spacings
 from .candidates import classify_edges, point_normals
-from .chaining import _cluster_pieces, _end_directions, _Piece, bridge_pieces
+from .chaining import Bridging, _cluster_pieces, _end_directions, _Piece, bridge_pieces
 from .edges import _usable_table, edge_scores
 from .model import CONCAVE, GROOVE, WELDABLE, SeamExtraction, SeamPolyline, _as_points
 from .ordering import _orthogonal_to_travel, _smooth_approach, _smooth_positions, _straight
@@ -27,7 +27,7 @@ from .refinement import (
 )
 from .settings import ChainSettings, SeamSettings
 from .support import SupportPlane, drop_contact, on_support, support_plane
-from .tracing import grow_pieces
+from .tracing import Growing, grow_pieces
 
 # A cloud is read as an anisotropic (line-by-line) scan when its coarse spacing exceeds this x its fine
 # spacing (:func:`~weldcell.plugins.scan_plan.cloud_numerics.sampling_spacings`, measured after the
@@ -69,11 +69,7 @@ def chain_seams(
     pieces = _fitted_pieces(P, N, tree, _clusters(P, weld_idx, weld_labels, approach, cfg), cfg)
     s = cfg
     if s.max_grow > 0 and s.refine:
-        pieces = grow_pieces(
-            P,
-            N,
-            tree,
-            pieces,
+        growing = Growing(
             spacing=s.spacing,
             eps=s.eps,
             side_radius=s.side_radius,
@@ -81,12 +77,9 @@ def chain_seams(
             min_crease_angle=min(s.min_crease_angle, s.grow_min_crease_angle),
             max_length=s.max_grow,
         )
+        pieces = grow_pieces(P, N, tree, pieces, growing)
     if s.max_gap > 0 and s.refine:
-        pieces = bridge_pieces(
-            P,
-            N,
-            tree,
-            pieces,
+        bridging = Bridging(
             max_gap=s.max_gap,
             max_angle=s.max_gap_angle,
             spacing=s.spacing,
@@ -94,6 +87,7 @@ def chain_seams(
             min_crease_angle=min(s.min_crease_angle, s.grow_min_crease_angle),
             approach_radius=s.approach_radius,
         )
+        pieces = bridge_pieces(P, N, tree, pieces, bridging)
     seams: list[SeamPolyline] = []
     for piece in sorted(pieces, key=lambda p: -len(p.X)):
         seam = _polyline(P, N, tree, piece, cfg, len(seams))
@@ -297,19 +291,7 @@ def extract_seams(
     P = _as_points(points, s.m)
     tree = cKDTree(P)
     fine, coarse = sampling_spacings(P, tree)
-    es = edge_scores(
-        P,
-        m=s.m,
-        radius=s.radius,
-        radius_factor=s.radius_factor,
-        k_max=_wide_enough(s.k_max, s.coarse_reach * coarse, fine, coarse),
-        sigma=s.sigma,
-        floor=s.floor,
-        min_intensity=s.min_intensity,
-        neighbours=neighbours,
-        min_radius=s.coarse_reach * coarse,
-        tree=tree,
-    )
+    es = _edge_step(P, tree, s, neighbours, fine, coarse)
     I, score, r = es.intensity, es.ratio, es.radius
     r_fine = min(r, s.radius_factor * fine) if s.radius is None else r
     table = _usable_table(P, neighbours)
@@ -328,6 +310,32 @@ def extract_seams(
     params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
     params.update(spacing=(fine, coarse), support=None if support is None else support.normal.tolist())
     return SeamExtraction(edge, score, I, labels, seams, r, params)
+
+
+def _edge_step(
+    P: np.ndarray,
+    tree: cKDTree,
+    s: SeamSettings,
+    neighbours: NeighbourTable | None,
+    fine: float,
+    coarse: float,
+):
+    """Eqs. 11-17 on the cloud (:func:`edge_scores`) with the settings ``s``: on an anisotropic scan the
+    neighbourhood reaches at least ``s.coarse_reach`` x the ``coarse`` spacing (and holds the columns
+    such a disc needs)."""
+    return edge_scores(
+        P,
+        m=s.m,
+        radius=s.radius,
+        radius_factor=s.radius_factor,
+        k_max=_wide_enough(s.k_max, s.coarse_reach * coarse, fine, coarse),
+        sigma=s.sigma,
+        floor=s.floor,
+        min_intensity=s.min_intensity,
+        neighbours=neighbours,
+        min_radius=s.coarse_reach * coarse,
+        tree=tree,
+    )
 
 
 def _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints):

@@ -4,6 +4,8 @@ and orientation."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -42,6 +44,15 @@ def _resample(X: np.ndarray, A: np.ndarray, spacing: float, closed: bool) -> tup
     return Xr, Ar
 
 
+@dataclass(frozen=True)
+class SideLimits:
+    """What makes a node's two-side-plane fit usable (:func:`_refine_on_sides`)."""
+
+    k: int = 256  # at most this many nearest cloud points per node
+    min_side_fraction: float = 0.2  # share of the points each side holds
+    min_included_angle: float = MIN_INCLUDED_ANGLE  # narrower "creases" are folded surfaces (rad)
+
+
 def _refine_on_sides(
     P: np.ndarray,
     N: np.ndarray,
@@ -49,14 +60,13 @@ def _refine_on_sides(
     X: np.ndarray,
     radius: float,
     min_crease_angle: float,
-    k: int = 256,
-    min_side_fraction: float = 0.2,
+    limits: SideLimits = SideLimits(),  # noqa: B008 (frozen, immutable)
     query: tuple[np.ndarray, np.ndarray] | None = None,
-    min_included_angle: float = MIN_INCLUDED_ANGLE,
     convex_share: bool = False,
 ) -> tuple[np.ndarray, ...]:
     """Snap seam nodes onto the intersection line of the two side planes fitted around them.
 
+    ``limits`` (:class:`SideLimits`) holds ``k``, ``min_side_fraction`` and ``min_included_angle``.
     The planes are fitted to the (at most ``k`` nearest) cloud points within ``radius`` of each node.
     Returns the moved nodes, the approach ``-(n_a + n_b)/|.|`` of the fitted planes, a mask of the
     nodes where the fit was usable and the angle between the two plane normals (pi minus the included
@@ -66,6 +76,7 @@ def _refine_on_sides(
     the points (a real joint has surface on both sides; the curled, noisy border of a scan has a few
     points only on its "second side"). Also returns the share of each node's points left out of the
     plane fits and, with ``convex_share``, the share that marks a convex edge (:func:`_convex_share`)."""
+    k, min_side_fraction, min_included_angle = limits.k, limits.min_side_fraction, limits.min_included_angle
     _, valid0, na, nbv, in_a, Q = _sides_at(P, N, tree, X, radius, k, query)
     # planes n . (x - X) = d; points behind the other side's plane (a third surface) left out
     na, da, nbv, db, ca, cb, valid = _fit_two_planes(Q, valid0, na, nbv, in_a, behind_tol=BEHIND_TOL * radius)

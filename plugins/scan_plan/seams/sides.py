@@ -172,7 +172,7 @@ def _kept(valid: np.ndarray, ra: np.ndarray, rb: np.ndarray, tol: float) -> np.n
     return valid & (np.abs(own) <= tol) & (other >= -tol)
 
 
-def _fit_planes_from(
+def _fit_planes_from(  # 11 params: the arrays of one batched, vectorised two-plane fit (not settings)
     U: tuple[np.ndarray, ...],
     valid: np.ndarray,
     use: np.ndarray,

@@ -3,7 +3,7 @@ cloud) until they meet another piece, the cloud ends or the crease fades."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -32,24 +32,34 @@ class _Tracer:
     max_join_angle: float
 
 
+@dataclass(frozen=True)
+class Growing:
+    """Settings of :func:`grow_pieces` (lengths in m, angles in rad)."""
+
+    spacing: float  # step between traced nodes
+    eps: float  # a trace this close to another piece's end joins it
+    side_radius: float  # radius of the side-plane fits of every traced node
+    approach_radius: float  # radius of their approach fits
+    min_crease_angle: float  # smallest crease angle a traced node must show
+    max_length: float  # longest trace per end
+    max_turn: float = np.deg2rad(30.0)  # largest turn of one step
+    max_approach_turn: float = np.deg2rad(20.0)  # largest turn of the approach in one step
+    max_join_angle: float = np.deg2rad(45.0)  # approaches of a trace and the piece it joins agree within
+
+
 def grow_pieces(
     P: np.ndarray,
     N: np.ndarray,
     tree: cKDTree,
     pieces: list[_Piece],
-    *,
-    spacing: float,
-    eps: float,
-    side_radius: float,
-    approach_radius: float,
-    min_crease_angle: float,
-    max_length: float,
-    max_turn: float = np.deg2rad(30.0),
-    max_approach_turn: float = np.deg2rad(20.0),
-    max_join_angle: float = np.deg2rad(45.0),
+    settings: Growing | None = None,
+    **overrides: float,
 ) -> list[_Piece]:
     """Extend every open piece at both ends by tracing its joint (seam tracking on the cloud), and join
     the pieces the traces run into.
+
+    ``settings`` is a :class:`Growing`; keyword ``overrides`` replace its fields (or give them all, e.g.
+    ``grow_pieces(P, N, tree, pieces, spacing=0.0015, eps=0.003, ..., max_length=0.3)``).
 
     Where a shallow crease (e.g. the flanks of a pipe junction, ~145 deg included angle) gives too few
     eq. 16 edge points, a seam is found in pieces. From each open end, nodes are placed ``spacing``
@@ -62,22 +72,23 @@ def grow_pieces(
     ``max_join_angle``) joins that piece; one that reaches its own piece's other end closes it into a
     loop; one that meets any other node stops. Closed pieces are returned unchanged.
     """
-    max_steps = int(max_length / spacing)
+    c = replace(settings, **overrides) if settings is not None else Growing(**overrides)
+    max_steps = int(c.max_length / c.spacing)
     if max_steps < 1:
         return pieces
     tr = _Tracer(
         P,
         N,
         tree,
-        spacing,
-        eps,
-        side_radius,
-        approach_radius,
-        min_crease_angle,
+        c.spacing,
+        c.eps,
+        c.side_radius,
+        c.approach_radius,
+        c.min_crease_angle,
         max_steps,
-        max_turn,
-        max_approach_turn,
-        max_join_angle,
+        c.max_turn,
+        c.max_approach_turn,
+        c.max_join_angle,
     )
     out = [_with_fit(p) for p in pieces]
     todo = [(i, e) for i, p in enumerate(out) if not p.closed for e in (0, 1)]
