@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 from weldcell.hal.iso9409 import ISO9409_1, check_dimensions, iso9409_dimensions
-from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.sdk.cloud import UNIT_SCALE
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.repeatable import open3d_serial
 
 __all__ = [
     "ISO9409_1",

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.sdk.errors import DataError
+from weldcell.sdk.repeatable import open3d_serial
 
 
 @dataclass

@@ -21,7 +21,6 @@ from pydantic import Field
 from weldcell.plugins.handeye.calibrate import calibrate
 from weldcell.plugins.handeye.circle import ransac_circle
 from weldcell.plugins.handeye.flange_model import ISO9409_1, FlangeModel, iso9409_model, load_clean_model
-from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.plugins.handeye.segmentation import SegmentSettings, segment_flange
 from weldcell.plugins.handeye.verification import (
     ConsensusVerifier,
@@ -34,6 +33,7 @@ from weldcell.sdk.errors import DataError, UsageError
 from weldcell.sdk.geometry import frame_from_axes, invert
 from weldcell.sdk.handeye_files import HandEyeResult, HandEyeSample
 from weldcell.sdk.pointfit import rigid_fit_batch
+from weldcell.sdk.repeatable import open3d_serial
 from weldcell.sdk.settings import Settings
 from weldcell.sdk.units import Length
 

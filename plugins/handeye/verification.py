@@ -13,9 +13,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.sdk.geometry import T_to_rpy, invert
 from weldcell.sdk.pointfit import scaled_svd_fit
+from weldcell.sdk.repeatable import open3d_serial
 
 Verifier = Callable[[np.ndarray], "np.ndarray | None"]
 Cost = Callable[["np.ndarray | None"], float]

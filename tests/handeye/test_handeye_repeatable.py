@@ -13,11 +13,11 @@ import pytest
 from weldcell.plugins.handeye.calibrate import DEFAULTS
 from weldcell.plugins.handeye.flange_model import iso9409_model
 from weldcell.plugins.handeye.iterative import iterative_pool
-from weldcell.plugins.handeye.repeatable import open3d_serial
 from weldcell.plugins.handeye.simulation import render_flange_scan
 from weldcell.plugins.handeye.stages import FlangeHandEye, FlangeSettings
 from weldcell.plugins.handeye.verification import IcpVerifier
 from weldcell.sdk.geometry import T_from_rpy, invert, transform_points
+from weldcell.sdk.repeatable import open3d_serial
 
 
 @pytest.fixture

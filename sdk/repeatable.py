@@ -5,7 +5,8 @@ iterations drawing from one shared random engine) on oneTBB worker threads; how 
 between threads depends on the machine's load, so the floating-point sums and the RANSAC draws come
 out in a different order from run to run (e.g. 7 different ICP transforms in 30 identical calls on a
 loaded 2-core host). Inside :func:`open3d_serial` Open3D uses one thread, which makes those calls
-bit-repeatable; the hand-eye clouds are small (1-20k points), so the cost is small.
+bit-repeatable. Used by the hand-eye plugin (clouds of 1-20k points) and the seam stage's support-plane
+RANSAC; the cost is small at those sizes (measured beside each use).
 """
 
 from __future__ import annotations
