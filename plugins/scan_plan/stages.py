@@ -194,6 +194,21 @@ def oriented_normals(cloud: PointCloud) -> np.ndarray | None:
     return N * np.where(sign < 0, -1.0, 1.0)[:, None]
 
 
+def _image_axes(D: np.ndarray, z_axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pixel grid's axes in the image plane normal to ``z_axis``: the principal axes of the points'
+    directions as the camera sees them, so the grid (and which points share a pixel) is the same in
+    every frame the cloud may be expressed in (a sign flip of an axis leaves the bin edges in place)."""
+    a = np.cross(z_axis, [1.0, 0.0, 0.0] if abs(z_axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(z_axis, a)
+    zc = np.maximum(D @ z_axis, 1e-12)
+    uv = np.stack([(D @ a) / zc, (D @ b) / zc], axis=1)
+    _, vecs = np.linalg.eigh(np.cov(uv.T) if len(uv) > 2 else np.eye(2))
+    x_axis = vecs[0, 1] * a + vecs[1, 1] * b  # the major axis
+    x_axis /= np.linalg.norm(x_axis)
+    return x_axis, np.cross(z_axis, x_axis)
+
+
 def visible_from(
     P: np.ndarray, eye: np.ndarray, pixel: float | None = None, tol: float | None = 0.003
 ) -> np.ndarray:
@@ -209,9 +224,7 @@ def visible_from(
     D = P - np.asarray(eye, dtype=float)
     z_axis = D.mean(axis=0)
     z_axis /= max(float(np.linalg.norm(z_axis)), 1e-12)
-    x_axis = np.cross(z_axis, [0.0, 0.0, 1.0] if abs(z_axis[2]) < 0.9 else [1.0, 0.0, 0.0])
-    x_axis /= np.linalg.norm(x_axis)
-    y_axis = np.cross(z_axis, x_axis)
+    x_axis, y_axis = _image_axes(D, z_axis)
     depth = np.linalg.norm(D, axis=1)
     zc = D @ z_axis
     front = zc > 1e-6

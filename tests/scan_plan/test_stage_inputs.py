@@ -92,8 +92,11 @@ def test_transformed_clouds_move_their_viewpoints_and_keep_their_orientation(sca
     T = T_from_rpy([0.4, -1.1, 2.0], [0.3, -0.2, 0.1])
     moved = clean.transformed(T, frame="world")
     np.testing.assert_allclose(moved.viewpoints, EYES @ T[:3, :3].T + T[:3, 3], atol=1e-12)
-    # the normals face the camera as before the move (one camera: no visibility test, whose pixel grid
-    # is laid in the cloud's frame)
+    # the normals face the cameras as before the move: with two cameras the visibility test decides, and
+    # its pixel grid follows the points as the camera sees them, not the cloud's frame
+    np.testing.assert_allclose(
+        oriented_normals(moved), oriented_normals(clean) @ T[:3, :3].T, atol=1e-9
+    )
     one = clean.with_viewpoints(EYES[:1])
     before = oriented_normals(one) @ T[:3, :3].T
     np.testing.assert_allclose(oriented_normals(one.transformed(T)), before, atol=1e-9)
