@@ -36,6 +36,11 @@ CONFIGS: dict[str, dict] = {
     "imu-inflate-1": {"imu_noise": {"inflate": 1.0}},
     "links-1": {"estimator": {"links": 1, "use_gnss": False}},
     "no-depth-noise": {"depth_noise": False},
+    "head-on-depth": {"frontend": {"incidence_noise": False}},  # and no plane fit
+    "no-depth-fit": {"frontend": {"depth_fit": False}},
+    "no-pnp-floor": {"estimator": {"pnp_sigma_t": 1e-4, "pnp_sigma_r": 1e-5}},
+    # the estimator before the key-frame depth model: head-on depth sigma, the measured depth
+    "before": {"frontend": {"incidence_noise": False}},
 }
 
 
@@ -126,16 +131,8 @@ def make_sequence(
         K = Intrinsics(*[int(v) for v in z["K"][:2]], *[float(v) for v in z["K"][2:]])
     else:
         cam = RgbdCamera(preset, site.world.meshes(), decimation=decimation, noise=depth_noise)
-        rng = np.random.default_rng(seed + 1)
-        rgbs, depths = [], []
-        for T in Tc:
-            d, c = cam.render_rgbd(T, rng=rng)
-            rgbs.append(c)
-            depths.append(d.depth.astype(np.float32))
-        rgb, depth = np.array(rgbs), np.array(depths)
+        rgb, depth = _render(cam, Tc, seed, f)
         K = cam.intrinsics
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez(f, rgb=rgb, depth=depth, K=np.array([K.width, K.height, K.fx, K.fy, K.cx, K.cy]))
     T_imu_cam = np.linalg.inv(T_base_imu) @ T_base_cam
     T_imu_ant = np.linalg.inv(T_base_imu) @ T_base_ant
     return Sequence(
@@ -154,9 +151,28 @@ def make_sequence(
     )
 
 
+def _render(cam, Tc: np.ndarray, seed: int, f: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Colour and depth of every camera pose, saved to ``f`` (via a part file renamed when complete, so an
+    interrupted run leaves no cache behind)."""
+    rng = np.random.default_rng(seed + 1)
+    rgbs, depths = [], []
+    for T in Tc:
+        d, c = cam.render_rgbd(T, rng=rng)
+        rgbs.append(c)
+        depths.append(d.depth.astype(np.float32))
+    rgb, depth = np.array(rgbs), np.array(depths)
+    K = cam.intrinsics
+    f.parent.mkdir(parents=True, exist_ok=True)
+    part_file = f.with_suffix(".part.npz")
+    np.savez(part_file, rgb=rgb, depth=depth, K=np.array([K.width, K.height, K.fx, K.fy, K.cx, K.cy]))
+    part_file.replace(f)
+    return rgb, depth
+
+
 STAGES = {
     "_predict": "IMU prediction (preintegration)",
     "extract": "ORB extraction",
+    "add_depth_sigmas": "key-frame depth model (incidence, plane fit)",
     "_track": "tracking PnP (by projection)",
     "fill_missing_depth": "eq. 4 triangulation",
     "_visual_factors": "key-frame PnP links + covariance",
@@ -183,8 +199,8 @@ def instrument(est) -> dict[str, list[tuple[float, float]]]:
         return wrapper
 
     for attr, name in STAGES.items():
-        if attr == "extract":
-            est.fe.extract = timed(est.fe.extract, name)
+        if attr in ("extract", "add_depth_sigmas"):  # the front end's methods
+            setattr(est.fe, attr, timed(getattr(est.fe, attr), name))
         elif attr == "fill_missing_depth":
             module.fill_missing_depth = timed(module.fill_missing_depth, name)
         else:
@@ -192,7 +208,7 @@ def instrument(est) -> dict[str, list[tuple[float, float]]]:
     return spent
 
 
-def run(seq: Sequence, cfg: dict, stages: bool = False) -> dict:
+def run(seq: Sequence, cfg: dict, stages: bool = False, dump: Path | None = None) -> dict:
     """The estimator over ``seq`` with the configuration's settings; ATE of the key frames."""
     from weldcell.plugins.mapping.estimator import VioEstimator
     from weldcell.plugins.mapping.frontend import OrbFrontEnd
@@ -224,12 +240,17 @@ def run(seq: Sequence, cfg: dict, stages: bool = False) -> dict:
             truth[res.keyframe.index] = seq.T_world_cam[n]
     wall = time.perf_counter() - t0
     Tr = np.array([truth[k.index] for k in est.keyframes])
-    ate_smoother = ate_rmse(est.keyframe_trajectory()[1][:, :3, 3], Tr[:, :3, 3])[0]
+    T_smoother = est.keyframe_trajectory()[1]
+    ate_smoother = ate_rmse(T_smoother[:, :3, 3], Tr[:, :3, 3])[0]
     if hasattr(est, "finalize"):
         est.finalize()
     tk, Tk = est.keyframe_trajectory()
     ref = Tr[:, :3, 3]
     ate, _ = ate_rmse(Tk[:, :3, 3], ref)
+    if dump is not None:  # the key-frame trajectories, for per-segment analysis (mapping_segments.py)
+        dump.parent.mkdir(parents=True, exist_ok=True)
+        loops = np.array([(lp.old, lp.new) for lp in est.global_graph.loops], int).reshape(-1, 2)
+        np.savez(dump, t=tk, T_est=Tk, T_smoother=T_smoother, T_true=Tr, loops=loops)
     tm = {k: (1000 * float(np.mean(v)), 1000 * float(np.std(v))) for k, v in est.timing.items() if v}
     return {
         "ate_m": ate,
@@ -311,6 +332,7 @@ def main() -> None:
     ap.add_argument("--components", action="store_true", help="front-end CPU per component, then stop")
     ap.add_argument("--stages", action="store_true", help="CPU and wall time per estimator stage")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--dump", type=Path, help="folder: key-frame trajectories per config and seed (.npz)")
     args = ap.parse_args()
     if args.components:
         frontend_components(args.decimation)
@@ -334,7 +356,9 @@ def main() -> None:
                 args.resolution,
                 args.frames,
             )
-            r = run(seq, cfg, args.stages)
+            mode = args.resolution or f"d{args.decimation}"
+            dump = args.dump / f"{name}_s{seed}_L{args.length:g}_{mode}.npz" if args.dump else None
+            r = run(seq, cfg, args.stages, dump)
             rows.setdefault(name, {})[seed] = r
             for k, (cm, wm, cs, ws, n) in r.pop("stages_ms").items():
                 print(f"  {k:36s} CPU {cm:6.1f} ± {cs:5.1f} ms   wall {wm:6.1f} ± {ws:5.1f} ms   ({n} calls)")

@@ -31,7 +31,7 @@ from weldcell.hal.readings import Intrinsics
 from weldcell.plugins.mapping.frontend import OrbFrontEnd, PnPResult, fill_missing_depth
 from weldcell.plugins.mapping.globalopt import GlobalGraph, close_loops
 from weldcell.plugins.mapping.interp import umeyama
-from weldcell.plugins.mapping.keyframe import FrameResult, KeyFrame
+from weldcell.plugins.mapping.keyframe import FrameResult, KeyFrame, TrackedFrame
 from weldcell.sdk.errors import DataError
 
 GRAVITY = 9.80665
@@ -150,6 +150,7 @@ class VioEstimator:
         T0[:3, :3] = gravity_alignment(acc.mean(0))
         bias = np.concatenate([np.zeros(3), gyr.mean(0)])
         feats = self.fe.extract(rgb, depth, K)
+        self.fe.add_depth_sigmas(feats, depth, K)
         kf = KeyFrame(0, t, t, rgb, depth, K, feats, T0, np.zeros(3), bias, True, truth)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
@@ -180,6 +181,7 @@ class VioEstimator:
         """Visual-only start (``use_imu = false`` and no IMU data): the world is the first body frame,
         not gravity-aligned; poses, velocities and (unused) biases get priors."""
         feats = self.fe.extract(rgb, depth, K)
+        self.fe.add_depth_sigmas(feats, depth, K)
         kf = KeyFrame(0, t, t, rgb, depth, K, feats, np.eye(4), np.zeros(3), np.zeros(6), True, truth)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
@@ -263,9 +265,11 @@ class VioEstimator:
         kf = None
         if self._need_keyframe(last, t, T_world_imu):
             t1 = _time.perf_counter()
+            self.fe.add_depth_sigmas(feats, depth, K)
             if tracked:  # eq. 4: features of the new key frame without depth get a triangulated one
                 fill_missing_depth(last.features, feats, pnp, K)
-            kf = self._add_keyframe(t, rgb, depth, K, feats, T_world_imu, v_pred, pim, covered, pnp, truth)
+            frame = TrackedFrame(t, rgb, depth, K, feats, T_world_imu, v_pred, pim, covered, pnp, truth)
+            kf = self._add_keyframe(frame)
             self.timing["backend"].append(_time.perf_counter() - t1)
             T_world_imu = kf.T_world_imu
         T = T_world_imu @ self.T_imu_cam
@@ -331,58 +335,64 @@ class VioEstimator:
             or (self.is_lost and self.lost == self.s.lost_after)
         )
 
-    def _add_keyframe(
-        self, t, rgb, depth, K, feats, T_world_imu, v_pred, pim, covered, pnp, truth
-    ) -> KeyFrame:
+    def _add_keyframe(self, f: TrackedFrame) -> KeyFrame:
+        """The tracked frame ``f`` becomes key frame k: its motion factor from the last key frame, visual
+        and GNSS factors, one smoother update, then the loop check."""
         last = self.keyframes[-1]
         k = len(self.keyframes)
+        v_pred = np.asarray(f.velocity, float)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        values.insert(X(k), _pose3(T_world_imu))
-        values.insert(V(k), np.asarray(v_pred, float))
+        values.insert(X(k), _pose3(f.T_world_imu))
+        values.insert(V(k), v_pred)
         values.insert(B(k), self._bias(last.bias))
-        stamps = {k: t}
-        if self.s.use_imu and covered:
-            graph.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim))
-        else:
-            # keep the graph connected: weak motion prior from the prediction, bias held
-            dT = np.linalg.inv(last.T_world_imu) @ T_world_imu
-            graph.add(
-                gtsam.BetweenFactorPose3(X(k - 1), X(k), _pose3(dT), gtsam.noiseModel.Isotropic.Sigma(6, 0.5))
-            )
-            graph.add(
-                gtsam.BetweenFactorConstantBias(
-                    B(k - 1), B(k), self._bias(np.zeros(6)), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
-                )
-            )
-            graph.add(
-                gtsam.PriorFactorVector(
-                    V(k), np.asarray(v_pred, float), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
-                )
-            )
+        self._motion_factors(graph, k, f, last)
         visual = False
         if self.s.use_vision:
-            visual = self._visual_factors(graph, k, feats, K, pnp, T_world_imu)
-        self._gnss_factor(graph, k, t, T_world_imu)
+            visual = self._visual_factors(graph, k, f.features, f.intrinsics, f.pnp, f.T_world_imu)
+        self._gnss_factor(graph, k, f.t, f.T_world_imu)
         kf = KeyFrame(
             k,
-            t,
-            t,
-            rgb,
-            depth,
-            K,
-            feats,
-            T_world_imu,
-            np.asarray(v_pred, float),
+            f.t,
+            f.t,
+            f.rgb,
+            f.depth,
+            f.intrinsics,
+            f.features,
+            f.T_world_imu,
+            v_pred,
             last.bias.copy(),
             visual,
-            truth,
+            f.truth,
         )
         self.keyframes.append(kf)
-        self._update(graph, values, stamps)
+        self._update(graph, values, {k: f.t})
         if visual and self.s.loop_closure:
             self._close_loops(kf)
         return kf
+
+    def _motion_factors(self, graph, k: int, f: TrackedFrame, last: KeyFrame) -> None:
+        """The IMU preintegration factor from key frame k-1 to k, or without IMU coverage a weak motion
+        prior from the prediction (bias held) that keeps the graph connected."""
+        if self.s.use_imu and f.imu_covered:
+            graph.add(
+                gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), f.preintegrated)
+            )
+            return
+        dT = np.linalg.inv(last.T_world_imu) @ f.T_world_imu
+        graph.add(
+            gtsam.BetweenFactorPose3(X(k - 1), X(k), _pose3(dT), gtsam.noiseModel.Isotropic.Sigma(6, 0.5))
+        )
+        graph.add(
+            gtsam.BetweenFactorConstantBias(
+                B(k - 1), B(k), self._bias(np.zeros(6)), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+            )
+        )
+        graph.add(
+            gtsam.PriorFactorVector(
+                V(k), np.asarray(f.velocity, float), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
+            )
+        )
 
     def _pnp_sigmas(self, res: PnPResult) -> np.ndarray:
         """1-sigma (rotation x3 rad, translation x3 m) of a PnP relative pose: its own reprojection

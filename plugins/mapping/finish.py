@@ -32,6 +32,8 @@ def resume_if_any(ctx, rig, tr) -> None:
     for r in sorted(old.records, key=lambda r: r.index):
         d = old.read(r)
         feats = FrameFeatures(d["pixels"].astype(float), d["descriptors"], d["points"].astype(float))
+        if "depth" in d:  # each point's depth sigma, as the key frame had it (PnP and loop references)
+            tr.estimator.fe.add_depth_sigmas(feats, d["depth"], old.intrinsics)
         kfs.append(
             KeyFrame(
                 r.index,
@@ -286,15 +288,33 @@ def finish(ctx, rig, tr) -> dict:
                 r.plate = region_pixels(ctx, tr, r)
     figs = evaluate(ctx, tr, rig, regions)
     A = figs.pop("_align", None)
+    _write_trajectories(ctx, tr)
+    _write_regions(ctx, regions, log)
+    ctx.write_json("events.json", {"schema": "weldcell/map-events@1", "events": est.events})
+    figures = _result_figures(tr, figs, vm, regions)
+    if ctx.profile.output.report:
+        with ctx.step("report"):
+            write_report(ctx, tr, rig, regions, figures, A)
+    return figures
+
+
+def _write_trajectories(ctx, tr) -> None:
+    """trajectory_keyframes.tum, truth_keyframes.tum (simulation) and trajectory_frames.tum (eq. 2: every
+    camera frame between the optimised key-frame poses)."""
+    est = tr.estimator
     t_kf, T_kf = est.keyframe_trajectory()
     _tum(ctx.path("trajectory_keyframes.tum"), t_kf, T_kf)
     truth = {round(t, 6): T for t, T in tr.truth_frames}
     if truth and all(round(t, 6) in truth for t in t_kf):  # simulation: ground truth beside it
         _tum(ctx.path("truth_keyframes.tum"), t_kf, np.array([truth[round(t, 6)] for t in t_kf]))
     tf = np.array([p[0] for p in est.frame_poses if t_kf[0] <= p[0] <= t_kf[-1]])
-    if len(t_kf) >= 2 and len(tf):  # eq. 2: every camera frame between the optimised key-frame poses
+    if len(t_kf) >= 2 and len(tf):
         method = ctx.settings.estimator.interpolation
         _tum(ctx.path("trajectory_frames.tum"), tf, interpolate_trajectory(t_kf, T_kf, tf, method))
+
+
+def _write_regions(ctx, regions, log) -> None:
+    """regions.json (``weldcell/weld-regions@1``): each region with its decision, box and dense surface."""
     ctx.write_json(
         "regions.json",
         {
@@ -320,13 +340,17 @@ def finish(ctx, rig, tr) -> dict:
             "decisions": log,
         },
     )
-    ctx.write_json("events.json", {"schema": "weldcell/map-events@1", "events": est.events})
+
+
+def _result_figures(tr, figs: dict, vm, regions) -> dict:
+    """The run's result figures: the evaluation's, the counts and the time per stage."""
+    est = tr.estimator
     timing = {
         k: {"mean_ms": float(np.mean(v) * 1000), "std_ms": float(np.std(v) * 1000), "n": len(v)}
         for k, v in est.timing.items()
         if v
     }
-    figures = {
+    return {
         **{k: v for k, v in figs.items() if not isinstance(v, np.ndarray)},
         "keyframes": len(est.keyframes),
         "frames": tr.frames,
@@ -338,7 +362,3 @@ def finish(ctx, rig, tr) -> dict:
         "time_per_stage": timing,
         "frame_seconds_mean": float(np.mean(tr.frame_seconds)) if tr.frame_seconds else None,
     }
-    if ctx.profile.output.report:
-        with ctx.step("report"):
-            write_report(ctx, tr, rig, regions, figures, A)
-    return figures

@@ -5,10 +5,11 @@ features and the estimated IMU state) and the result of each camera frame.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from weldcell.hal.readings import Intrinsics
-from weldcell.plugins.mapping.frontend import FrameFeatures
+from weldcell.plugins.mapping.frontend import FrameFeatures, PnPResult
 
 
 @dataclass
@@ -40,3 +41,25 @@ class FrameResult:
     keyframe: KeyFrame | None
     tracked: bool
     events: list[str]
+
+
+@dataclass
+class TrackedFrame:
+    """One camera frame after tracking, as the estimator turns it into a key frame: its images and
+    features, the tracked IMU pose and the IMU prediction since the last key frame."""
+
+    t: float
+    rgb: np.ndarray
+    depth: np.ndarray | None
+    intrinsics: Intrinsics
+    features: FrameFeatures
+    T_world_imu: np.ndarray
+    """PnP pose against the last key frame, or the IMU prediction when tracking failed."""
+    velocity: np.ndarray
+    """Predicted velocity in the world (m/s)."""
+    preintegrated: Any
+    """gtsam ``PreintegratedCombinedMeasurements`` from the last key frame to ``t``."""
+    imu_covered: bool
+    """Whether the IMU samples reach ``t`` (else the prediction is constant velocity)."""
+    pnp: PnPResult | None
+    truth: np.ndarray | None = None

@@ -11,6 +11,15 @@ def write_report(ctx, tr, rig, regions, figures: dict, A: np.ndarray | None) -> 
     import matplotlib
 
     matplotlib.use("Agg")
+    _trajectory_png(ctx, tr, figures, A)
+    _map_png(ctx, regions, A)
+    lines = _report_md_lines(ctx, tr.estimator, regions, figures)
+    artifacts.write_text(ctx.path("report/report.md"), "\n".join(lines))
+
+
+def _trajectory_png(ctx, tr, figures: dict, A: np.ndarray | None) -> None:
+    """report/trajectory.png: estimated key frames (aligned by ``A`` when given) over the truth, top view,
+    with the places where tracking was lost."""
     import matplotlib.pyplot as plt
 
     est = tr.estimator
@@ -44,6 +53,10 @@ def write_report(ctx, tr, rig, regions, figures: dict, A: np.ndarray | None) -> 
     fig.savefig(ctx.path("report/trajectory.png"), dpi=110)
     plt.close(fig)
 
+
+def _map_png(ctx, regions, A: np.ndarray | None) -> None:
+    """report/map.png: the map's points (top view, coloured) with the weld regions and their decisions."""
+    import matplotlib.pyplot as plt
     import open3d as o3d
 
     pc = o3d.io.read_point_cloud(str(ctx.path("map/map.ply")))
@@ -65,6 +78,9 @@ def write_report(ctx, tr, rig, regions, figures: dict, A: np.ndarray | None) -> 
     fig.savefig(ctx.path("report/map.png"), dpi=110)
     plt.close(fig)
 
+
+def _report_md_lines(ctx, est, regions, figures: dict) -> list[str]:
+    """report.md: the figures, the time per stage, the weld regions, the events and the pictures."""
     lines = [
         f"# Map run: {ctx.profile.name}",
         "",
@@ -88,7 +104,7 @@ def write_report(ctx, tr, rig, regions, figures: dict, A: np.ndarray | None) -> 
         lines.append(f"| {r.id} | {r.decision} | {len(r.observations)} | {len(r.points)} |")
     lines += ["", "## Events", ""] + [f"- t={e['t']} s {e['kind']}: {e['message']}" for e in est.events]
     lines += ["", "![trajectory](trajectory.png)", "", "![map](map.png)", ""]
-    artifacts.write_text(ctx.path("report/report.md"), "\n".join(lines))
+    return lines
 
 
 _SEG_KEYS = (
@@ -380,27 +396,46 @@ def write_html(ctx, figures: dict):
         "Accuracy", "Errors against the simulated truth (trajectory rigidly aligned, as for ATE)."
     ).table(["figure", "value", "unit"], _accuracy_rows(figures), caption="Map accuracy and run figures")
     if manifest.get("segments"):
-        rows, marks = _segment_rows(manifest)
-        rep.section(
-            "Local maps",
-            "Each local map and how it was attached to the previous one. 'verified': the estimator's pose, "
-            "confirmed by ORB + PnP at the cut (as designed; the note says which check refined it); another "
-            "method is marked amber.",
-        ).table(
-            [
-                "local map",
-                "key frames",
-                "points",
-                "length [m]",
-                "size [MB]",
-                "max quantisation error [mm]",
-                "hand-over",
-                "note",
-            ],
-            rows,
-            row_status=marks,
-            caption="Local maps (segments)",
-        )
+        _local_maps_section(rep, manifest)
+    _regions_section(rep, regions)
+    changes = v2.get("changes", []) if v2 else []
+    if v2:
+        _second_visit_section(rep, v2, changes)
+    rep.section(
+        "3-D view",
+        "The map (decimated evenly), the estimated camera path (red) and, in simulation, the true one "
+        "(black dashed), the weld regions as boxes (orange found, amber to confirm, grey rejected) and "
+        "changes found on the second visit (dotted).",
+    ).scene(_map_scene(ctx, regions, changes))
+    _events_and_pictures(ctx, rep, events)
+    return rep.write(ctx.path("report/report.html"))
+
+
+def _local_maps_section(rep, manifest: dict) -> None:
+    rows, marks = _segment_rows(manifest)
+    rep.section(
+        "Local maps",
+        "Each local map and how it was attached to the previous one. 'verified': the estimator's pose, "
+        "confirmed by ORB + PnP at the cut (as designed; the note says which check refined it); another "
+        "method is marked amber.",
+    ).table(
+        [
+            "local map",
+            "key frames",
+            "points",
+            "length [m]",
+            "size [MB]",
+            "max quantisation error [mm]",
+            "hand-over",
+            "note",
+        ],
+        rows,
+        row_status=marks,
+        caption="Local maps (segments)",
+    )
+
+
+def _regions_section(rep, regions: list) -> None:
     sec = rep.section("Weld regions", "Regions the detector found, with the decision on each.")
     sec.table(
         ["region", "label", "decision", "key frames", "score", "centre [m]", "box [m]", "points"],
@@ -420,45 +455,39 @@ def write_html(ctx, figures: dict):
         row_status=[{"unconfirmed": "warn", "rejected": "bad"}.get(r["decision"], "") for r in regions],
         caption="Weld regions",
     )
-    changes = v2.get("changes", []) if v2 else []
-    if v2:
-        s2 = rep.section("Second visit", "Relocalization on the map, then the map update (§II-E).")
+
+
+def _second_visit_section(rep, v2: dict, changes: list) -> None:
+    s2 = rep.section("Second visit", "Relocalization on the map, then the map update (§II-E).")
+    shown = [(k, v) for k, v in v2.items() if k != "changes" and not isinstance(v, dict)]
+    s2.table(
+        ["figure", "value"],
+        [
+            [_V2_WORDS.get(k, k.replace("_", " ")), ", ".join(map(str, v)) if isinstance(v, list) else v]
+            for k, v in shown
+        ],
+        row_status=["bad" if k == "relocalization_status" and v != "ok" else "" for k, v in shown],
+        caption="Relocalization and map update",
+    )
+    if changes:
         s2.table(
-            ["figure", "value"],
+            ["change", "kind", "points", "centre [m]", "size [m]", "local map"],
             [
-                [_V2_WORDS.get(k, k.replace("_", " ")), ", ".join(map(str, v)) if isinstance(v, list) else v]
-                for k, v in v2.items()
-                if k != "changes" and not isinstance(v, dict)
-            ],
-            row_status=[
-                "bad" if k == "relocalization_status" and v != "ok" else ""
-                for k, v in v2.items()
-                if k != "changes" and not isinstance(v, dict)
-            ],
-            caption="Relocalization and map update",
-        )
-        if changes:
-            s2.table(
-                ["change", "kind", "points", "centre [m]", "size [m]", "local map"],
                 [
-                    [
-                        i + 1,
-                        c["kind"],
-                        c["points"],
-                        ", ".join(f"{v:.2f}" for v in c["center"]),
-                        " × ".join(f"{v:.2f}" for v in np.subtract(c["max"], c["min"])),
-                        c.get("segment"),
-                    ]
-                    for i, c in enumerate(changes)
-                ],
-                caption="Changes found against the map",
-            )
-    rep.section(
-        "3-D view",
-        "The map (decimated evenly), the estimated camera path (red) and, in simulation, the true one "
-        "(black dashed), the weld regions as boxes (orange found, amber to confirm, grey rejected) and "
-        "changes found on the second visit (dotted).",
-    ).scene(_map_scene(ctx, regions, changes))
+                    i + 1,
+                    c["kind"],
+                    c["points"],
+                    ", ".join(f"{v:.2f}" for v in c["center"]),
+                    " × ".join(f"{v:.2f}" for v in np.subtract(c["max"], c["min"])),
+                    c.get("segment"),
+                ]
+                for i, c in enumerate(changes)
+            ],
+            caption="Changes found against the map",
+        )
+
+
+def _events_and_pictures(ctx, rep, events: list) -> None:
     if events:
         rep.section("Events", "What the estimator reported while driving.").table(
             ["t [s]", "kind", "message"],
@@ -475,4 +504,3 @@ def write_html(ctx, figures: dict):
     ):
         if ctx.path(f"report/{name}").is_file():
             pics.figure(ctx.path(f"report/{name}"), caption)
-    return rep.write(ctx.path("report/report.html"))

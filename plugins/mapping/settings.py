@@ -29,6 +29,17 @@ class FrontEndSettings(Settings):
         description="stereo depth noise sigma_z = depth_noise * z^2 [1/m] (the camera's model; ZED 2i "
         "HD720: 0.08 px subpixel / (448 px * 0.12 m baseline))",
     )
+    incidence_noise: bool = Field(
+        True,
+        description="grow each feature's depth sigma by 1/cos of its incidence angle (surface normal from "
+        "the depth image), as stereo noise grows; off: the head-on depth_noise * z^2 for every feature",
+    )
+    depth_fit: bool = Field(
+        True,
+        description="a key frame's point on a surface that is planar within the noise takes the depth of "
+        "the plane fitted to the 7 x 7 depth samples around it (ML for independent pixel noise, as the "
+        "simulated ZED; turn off for a depth map filtered across pixels)",
+    )
 
 
 class EstimatorSettings(Settings):
