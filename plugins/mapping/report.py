@@ -255,6 +255,8 @@ def _map_verdict(figures: dict, regions: list, events: list) -> tuple[str, str, 
         )
         if figures.get("fetch_ok") is False:
             attention.append("the local maps were not all received over the network (fetch failed)")
+    for u in figures.get("ae_unmeasured") or []:
+        refused.append(f"{u['plate']} not measured: {u['reason']} (left out of the AE)")
     v2 = figures.get("visit2") or {}
     if v2:
         st = v2.get("relocalization_status")

@@ -74,6 +74,11 @@ def test_the_map_page_and_its_verdicts(map_run, tmp_path):
     assert 'class="verdict verdict-attention"' in page
     assert "tracking was lost 1 time(s) (at t = 3.2 s)" in page
     assert "second visit: relocalization failed: the map was not updated from it" in page
+    # a plate the views do not determine is reported, not measured by a guess
+    why = "only one key frame has depth there"
+    f4 = dict(figures, ae_unmeasured=[{"plate": "weld-plate-7", "reason": why}])
+    page = write_html(_ctx(alt, tmp_path / "o4"), f4).read_text()
+    assert "weld-plate-7 not measured: only one key frame has depth there (left out of the AE)" in page
     change = {
         "kind": "added",
         "points": 300,
