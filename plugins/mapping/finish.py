@@ -10,7 +10,7 @@ from weldcell.plugins.mapping.estimator import KeyFrame
 from weldcell.plugins.mapping.frontend import FrameFeatures
 from weldcell.plugins.mapping.interp import ate_rmse, interpolate_trajectory
 from weldcell.plugins.mapping.mapstore import KeyFrameStore, VoxelMap, back_project, tsdf_region
-from weldcell.plugins.mapping.plate import plate_corners_ml
+from weldcell.plugins.mapping.plate import plate_fit
 from weldcell.plugins.mapping.regions import (
     REGIONS_SCHEMA,
     RegionFuser,
@@ -220,13 +220,23 @@ def _interp_effect(t_kf: np.ndarray, T_kf: np.ndarray, tq: np.ndarray) -> dict:
     }
 
 
-PLATE_MIN_VIEWS = 5
-"""Key frames a plate must be seen in for the maximum-likelihood plate measurement (plate.py)."""
+def _plate_corners(region) -> tuple[np.ndarray | None, str]:
+    """A plate region's top corners and, when it is not measured, why. With the key frames' pixels the box
+    fit (plate.py) measures it or says why the views do not determine it; a region without pixels (re-fused
+    from points only) is measured on its points (its TSDF surface measures worse: docs/methods/mapping.md)."""
+    obs = getattr(region, "plate", None)
+    if obs is None:
+        corners = plate_corners(region.points)
+        return corners, "" if corners is not None else "too few points on the plate's top"
+    fit = plate_fit(obs)
+    if fit is None:
+        return None, "too few depth pixels on the plate's top"
+    return (fit.corners, "") if fit.ok else (None, fit.reason)
 
 
 def _region_errors(rig, regions, A) -> dict:
     out: dict = {"regions_truth": 0, "regions_found": 0}
-    ae, pos = [], []
+    ae, pos, unmeasured = [], [], []
     truth = [w for w in rig.site.weld_truth()]
     out["regions_truth"] = len(truth)
     for w in truth:
@@ -243,17 +253,15 @@ def _region_errors(rig, regions, A) -> dict:
         out["regions_found"] += 1
         r = best[0]
         if w["corners"] is not None:
-            obs = getattr(r, "plate", None)
-            # the pixels with their rays and noise (plate.py), from enough key frames: with 3 distant views
-            # the uniform-spread model failed (docs/methods/mapping.md), the points' rectangle did better
-            if obs is not None and len(set(r.observations)) >= PLATE_MIN_VIEWS:
-                corners = plate_corners_ml(obs)
-            else:  # the region's points (its TSDF surface measures worse: docs/methods/mapping.md)
-                corners = plate_corners(r.points)
+            corners, why = _plate_corners(r)
             if corners is not None:
                 ae.append(corner_distance_error(corners, w["corners"]))
                 r.truth = w["name"]
+            else:  # reported, not guessed: the views do not determine the plate
+                unmeasured.append({"plate": w["name"], "reason": why})
         pos.append(best[1])
+    if unmeasured:
+        out["ae_unmeasured"] = unmeasured
     if ae:
         out["ae_mm"] = float(np.mean(ae) * 1000)
         out["ae_plates"] = len(ae)

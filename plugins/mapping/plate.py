@@ -24,7 +24,14 @@ import cv2
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr
-from weldcell.plugins.mapping.plate_fit import BoxFit, PlateView, crop_view, fit_box, params_from_corners
+from weldcell.plugins.mapping.plate_fit import (
+    K_SIGMA,
+    BoxFit,
+    PlateView,
+    crop_view,
+    fit_box,
+    params_from_corners,
+)
 
 
 @dataclass
@@ -47,6 +54,8 @@ LATERAL_PX = 0.1
 """Error of a pixel's point across its ray (px): the ray is the pixel centre's, exact up to calibration."""
 MIN_COS = 0.1
 """Incidence cosine below which the noise stops growing (the camera model's ``min_cos``)."""
+MIN_LAYER = 20
+"""Points the plate's top layer needs for the measurement."""
 
 
 def frame_observations(depth, K, T_world_cam, box_min, box_max, depth_noise: float) -> PlateObservations:
@@ -110,10 +119,22 @@ def _interval_ml(x: np.ndarray, s: np.ndarray) -> tuple[float, float, float]:
 
 
 def _top_height(z: np.ndarray, sv: np.ndarray, band: float) -> float:
-    """Height of the highest well-populated horizontal layer (the plate's top; side faces included),
-    weighted by each point's vertical precision."""
-    h, e = np.histogram(z, bins=np.arange(z.min(), z.max() + 0.01, 0.005))
-    k = np.flatnonzero(h >= 0.2 * h.max())[-1]
+    """Height of the highest horizontal layer (the plate's top; side faces included), weighted by each
+    point's vertical precision. A layer is a surface where the points within ``band`` of a height peak
+    (the most within a band either side) and outnumber those a band above by K_SIGMA Poisson standard
+    deviations, with at least MIN_LAYER points: the highest such peak, not the most populated (the region's
+    crop may reach the ground or a stand below the plate, with many times the plate's pixels; a rule
+    relative to the largest layer then measures the ground: issue 11, plate 1 of seed 0)."""
+    step = 0.005
+    e = np.arange(z.min() - 2 * band, z.max() + 2 * band + step, step)
+    h = np.histogram(z, bins=e)[0].astype(float)
+    nb = max(int(round(band / step)), 1)
+    s = np.convolve(h, np.ones(2 * nb + 1), mode="same")  # points within a band of each bin
+    n = len(s)
+    peak = np.array([s[k] >= s[max(k - nb, 0) : k + nb + 1].max() for k in range(n)])
+    above = np.r_[s[2 * nb :], np.zeros(2 * nb)]
+    surface = peak & (s >= MIN_LAYER) & (s - above > K_SIGMA * np.sqrt(np.maximum(s, 1.0)))
+    k = np.flatnonzero(surface)[-1] if surface.any() else int(np.argmax(s))
     m = np.abs(z - (e[k] + e[k + 1]) / 2) < np.maximum(band, 2 * sv)
     w = 1 / np.maximum(sv[m], 1e-4) ** 2
     return float(np.sum(w * z[m]) / np.sum(w))
@@ -130,7 +151,8 @@ def plate_fit(
     if c0 is None:
         return None
     smear = float(np.median(obs.sigma_ray * np.linalg.norm(obs.rays[:, :2], axis=1)))
-    return fit_box(obs.views, params_from_corners(c0, 0.0), smear)
+    region = (obs.points[:, :2].min(0), obs.points[:, :2].max(0))
+    return fit_box(obs.views, params_from_corners(c0, 0.0), smear, region=region)
 
 
 def plate_corners_ml(
@@ -154,7 +176,7 @@ def plate_corners_points(
     sv = np.sqrt((sr * r[:, 2]) ** 2 + sl**2)
     ztop = _top_height(P[:, 2], sv, top_band)
     layer = np.abs(P[:, 2] - ztop) < np.maximum(top_band, 2 * sv)
-    if layer.sum() < 20:
+    if layer.sum() < MIN_LAYER:
         return None
     L, r, sr, sl = P[layer, :2], r[layer, :2], sr[layer], sl[layer]
     sh = sr * np.linalg.norm(r, axis=1)

@@ -124,3 +124,45 @@ def test_an_axis_seen_only_along_the_line_of_sight_is_reported():
 def _K():
     p = zed_mode("VGA")
     return p.intrinsics
+
+
+@pytest.fixture(scope="module")
+def wide_views():
+    """Six of the views, each handed the pixels of a region box that reaches the ground 0.81 m below the
+    plate and 0.9 m beyond it (a region fused with the stand and the ground): the ground has many times
+    the plate's pixels."""
+    preset = zed_mode("VGA")
+    scene = [PLATE.workpiece(), _box([0, 0, 0.4], [0.3, 0.2, 0.8]), _box([0, 0, -0.05], [12, 12, 0.1])]
+    cam = RaycastCamera(preset, scene)
+    lo, hi = PLATE.center - [0.9, 0.9, 0.86], PLATE.center + [0.9, 0.9, 0.25]
+    out = []
+    for k, (az, dist) in enumerate(VIEWS[::2]):
+        a = np.radians(az)
+        T = _look_at(
+            np.array([dist * np.cos(a), dist * np.sin(a), CAMERA_HEIGHT]), PLATE.center + [0, 0, -0.1]
+        )
+        out.append(frame_observations(cam.render(T, rng=k).depth, cam.intrinsics, T, lo, hi, preset.sigma2))
+    return merge(out)
+
+
+def test_a_region_reaching_the_ground_measures_the_plate_not_the_ground(wide_views):
+    """The crop holds the ground (most pixels) below the plate: the start is the highest surface, the
+    plate's top (not the most populated layer, the ground), and the fit measures the plate."""
+    assert np.sum(wide_views.points[:, 2] < 0.05) > 5 * np.sum(np.abs(wide_views.points[:, 2] - 0.82) < 0.01)
+    start = plate_corners_points(wide_views)
+    assert abs(start[0, 2] - 0.82) < 0.01
+    fit = plate_fit(wide_views)
+    assert fit.ok, fit.reason
+    assert corner_distance_error(fit.corners, PLATE.corners) < 0.010
+
+
+def test_a_fit_started_on_a_surface_beyond_the_region_is_reported(wide_views):
+    """Started on the ground, a box at ground level reaching 0.1 m beyond the region's pixels (the start
+    the points' measurement made before it took the highest layer, issue 11): the fit reports the failure
+    with its reason instead of returning the ground's extent as the plate."""
+    P = wide_views.points
+    region = (P[:, :2].min(0), P[:, :2].max(0))
+    p0 = np.r_[(region[0] + region[1]) / 2, 0.0, region[1] - region[0] + 0.2, 0.0, 0.02]
+    f = fit_box(wide_views.views, p0, 0.02, region=region)
+    assert not f.ok and "edge of the region's pixels" in f.reason
+    assert plate_fit(wide_views).ok  # the same views, started as the job starts: measured
