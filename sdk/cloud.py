@@ -235,6 +235,16 @@ class PointCloud:
             viewpoints=None if self.viewpoints is None else self.viewpoints @ T[:3, :3].T + T[:3, 3],
         )
 
+    def scaled(self, factor: float) -> PointCloud:
+        """This cloud with its points and viewpoints multiplied by ``factor`` (a unit change, e.g. mm to m:
+        ``UNIT_SCALE["mm"]``); normals and colours as they are."""
+        return replace(
+            self,
+            points=self.points * factor,
+            meta=dict(self.meta),
+            viewpoints=None if self.viewpoints is None else self.viewpoints * factor,
+        )
+
     def to_open3d(self):
         """An ``open3d.geometry.PointCloud`` (legacy API) with the same points, normals and colours."""
         import open3d as o3d
@@ -391,11 +401,7 @@ def read_cloud(
     check_cloud(cloud, what=str(path))
     if check_scale:
         check_units(cloud, units, what=str(path))
-    if units != "m":
-        cloud.points *= UNIT_SCALE[units]
-        if cloud.viewpoints is not None:
-            cloud.viewpoints = cloud.viewpoints * UNIT_SCALE[units]
-    return cloud
+    return cloud if units == "m" else cloud.scaled(UNIT_SCALE[units])
 
 
 def write_cloud(path: str | Path, cloud: PointCloud, binary: bool = True) -> Path:

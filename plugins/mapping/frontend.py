@@ -349,14 +349,6 @@ def local_plane(depth: np.ndarray, u: np.ndarray, v: np.ndarray, P: np.ndarray, 
     return LocalPlane(cos, z, se, rms, dof)
 
 
-def incidence_cosine(
-    depth: np.ndarray, u: np.ndarray, v: np.ndarray, P: np.ndarray, K: Intrinsics
-) -> np.ndarray:
-    """|cos| of the angle between each key point's viewing ray and its surface's normal (N,), from
-    :func:`local_plane`: stereo noise grows with 1/cos of it (the camera model)."""
-    return local_plane(depth, u, v, P, K).cos
-
-
 def weighted_refine(obj, img, Km, rvec, tvec, C, iterations: int = 5):
     """Gauss-Newton refinement of a PnP pose with each point's own 2x2 covariance (pixel noise plus
     the 3-D point's covariance projected into the image) and a Huber kernel; returns rvec, tvec, the

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 from scipy.optimize import minimize
 from scipy.special import ndtr
 from weldcell.plugins.mapping.plate_fit import (
@@ -130,8 +131,7 @@ def _top_height(z: np.ndarray, sv: np.ndarray, band: float) -> float:
     h = np.histogram(z, bins=e)[0].astype(float)
     nb = max(int(round(band / step)), 1)
     s = np.convolve(h, np.ones(2 * nb + 1), mode="same")  # points within a band of each bin
-    n = len(s)
-    peak = np.array([s[k] >= s[max(k - nb, 0) : k + nb + 1].max() for k in range(n)])
+    peak = s >= maximum_filter1d(s, 2 * nb + 1, mode="constant")  # s >= 0: the edges see no more
     above = np.r_[s[2 * nb :], np.zeros(2 * nb)]
     surface = peak & (s >= MIN_LAYER) & (s - above > K_SIGMA * np.sqrt(np.maximum(s, 1.0)))
     k = np.flatnonzero(surface)[-1] if surface.any() else int(np.argmax(s))

@@ -42,9 +42,7 @@ def read_input_cloud(path: Path, units: str, frame: str) -> tuple[PointCloud, in
             "the scan holds no valid depth; capture it again",
         )
     check_units(cloud, units, what=str(path))
-    cloud.points = cloud.points * UNIT_SCALE[units]
-    if cloud.viewpoints is not None:  # stored in the file's units, as its points
-        cloud.viewpoints = cloud.viewpoints * UNIT_SCALE[units]
+    cloud = cloud.scaled(UNIT_SCALE[units])  # the stored viewpoints are in the file's units too
     cloud.meta["source"] = str(path)
     return cloud, len(raw) - len(cloud)
 

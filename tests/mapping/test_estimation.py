@@ -240,7 +240,7 @@ def test_incidence_angle_from_the_depth_image_sets_each_feature_depth_sigma():
     plane fit the key points' depth is several times more accurate, unbiased and still consistent.
     A pixel among dropouts (too few samples) gets the model's floor, cos 0.1."""
     from weldcell.hal.readings import Intrinsics
-    from weldcell.plugins.mapping.frontend import MIN_COS, FrameFeatures, incidence_cosine
+    from weldcell.plugins.mapping.frontend import MIN_COS, FrameFeatures, local_plane
 
     K = Intrinsics(672, 376, 224.0, 224.0, 335.5, 187.5)
     c = 3.0e-3
@@ -260,7 +260,7 @@ def test_incidence_angle_from_the_depth_image_sets_each_feature_depth_sigma():
         # what the camera returns: true depth within its range, incidence up to ~84° (grazing dropouts)
         ok = (clean[v, u] > 0.3) & (clean[v, u] < 12.0) & (cos_true[v, u] > 0.1) & (z > 0)
         P = np.column_stack([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z])[ok]
-        cos = incidence_cosine(depth, u[ok], v[ok], P, K)
+        cos = local_plane(depth, u[ok], v[ok], P, K).cos
         assert np.median(np.abs(cos - cos_true[v[ok], u[ok]])) < 0.05, tilt
         z_true = clean[v[ok], u[ok]]
         measured = FrameFeatures(uv[ok].astype(float), np.zeros((ok.sum(), 32), np.uint8), P.copy())
@@ -278,7 +278,7 @@ def test_incidence_angle_from_the_depth_image_sets_each_feature_depth_sigma():
         assert 0.5 < np.median(np.abs(err_fit / fitted.depth_sigma)) < 0.9, tilt  # Gaussian: 0.67
     holes = np.zeros((376, 672), np.float32)
     holes[100, 100] = 3.0
-    cos = incidence_cosine(holes, np.array([100]), np.array([100]), np.array([[0.0, 0.0, 3.0]]), K)
+    cos = local_plane(holes, np.array([100]), np.array([100]), np.array([[0.0, 0.0, 3.0]]), K).cos
     assert cos[0] == MIN_COS
 
 
