@@ -19,6 +19,7 @@ from .orientation import scan_side_normals
 from .refinement import (
     _curved_wall_nodes,
     _cut_end_corners,
+    _mostly_straight,
     _orient,
     _refine_nodes,
     _resample,
@@ -163,6 +164,13 @@ def _polyline(
     ok = piece.ok if piece.ok is not None else np.ones(len(Xs), dtype=bool)
     crease = piece.crease if piece.crease is not None else np.zeros(len(Xs))
     curved = closed or len(Xs) < 3 or not _straight(Xs)
+    groove = cfg.refine and len(Xs) >= 3 and _joint_class(piece, ok, crease, cfg) == "groove"
+    if groove and not closed and (not curved or _mostly_straight(Xs)):
+        # at the root opening, where the walls end; also a straight groove with a few stray nodes when
+        # it has an opening (else it keeps the curved-wall fit it had)
+        Xo = _root_opening(P, N, tree, Xs, cfg.side_radius)
+        if not curved or not np.array_equal(Xo, Xs):
+            Xs, curved = Xo, False
     if cfg.refine and cfg.wall_radius > 0 and len(Xs) >= 3 and ok.any() and curved:
         Xw, Aw, ok_w = _curved_wall_nodes(
             P, N, tree, Xs, cfg.approach_radius, cfg.wall_radius, cfg.side_radius
@@ -170,8 +178,6 @@ def _polyline(
         use = ok & ok_w & (np.linalg.norm(Xw - Xs, axis=1) < cfg.side_radius / 6.0)
         Xs = np.where(use[:, None], Xw, Xs)
         As = np.where(use[:, None], Aw, As)
-    elif cfg.refine and len(Xs) >= 3 and _joint_class(piece, ok, crease, cfg) == "groove":
-        Xs = _root_opening(P, N, tree, Xs, cfg.side_radius)  # at the root opening, where the walls end
     # smoothing window: smooth_length, but at most 1/8 of the seam (a quadratic fit over more of a
     # small ring would shrink it)
     window = max(int(cfg.smooth_window), int(round(cfg.smooth_length / spacing)) | 1)
