@@ -419,5 +419,5 @@ def _normals(
         noise = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
         plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008))
     if idx is not None:
-        N = scan_side_normals(P, N, idx, plane)
+        N = scan_side_normals(P, N, idx, plane, contact=not anisotropic)
     return N, plane

@@ -184,6 +184,63 @@ def on_support(P: np.ndarray, tree, plane: SupportPlane | None, X: np.ndarray, r
     return out
 
 
+def contact_roots(
+    P: np.ndarray, N: np.ndarray, idx: np.ndarray, plane: SupportPlane
+) -> tuple[np.ndarray, np.ndarray]:
+    """Signs of the normals of the part's points beside its contact with ``plane``, from the geometry of
+    the contact: indices into ``P`` and +-1 per index (flip ``N`` by it).
+
+    Where a part meets the table or fixture it rests on, the plane's visible points beside the contact lie
+    outside the part, so *in front of* the part's face there: a face standing on the table (normal across
+    it), a ramp, and an overhanging face that makes an acute wedge with the table (normal 90-180 deg from
+    the table's) alike. The sign of the plane's points' mean offset along a part point's normal is
+    therefore its orientation. An acute wedge is where sign propagation along normals
+    (:func:`~.orientation.propagate_signs`) fails: its points' normals blend into the direction across
+    the wedge, 20-25 deg from the table's and 155-160 deg from the overhanging face's, so a parent-to-child
+    sign rule (``n_i . n_j >= 0``) flips the whole face, and every face reached through it (evaluation
+    set: fillet-T joints resting on their two plate edges, structured light, cases 112, 147, 212, 213).
+
+    ``idx`` (n, k): each point's nearest neighbours. A point counts when it is not a plane point, lies
+    off the plane's band (``plane.tol``) but within its neighbourhood's radius of the plane (beside the
+    contact, not a face high above a plane seen through a root gap), is steep (normal >= 45 deg from the
+    plane's: a shallower face meets the plane at >= 135 deg, where propagation holds), has plane points
+    among its neighbours across the contact line from it (not along it: at a corner of the part's footprint
+    the plane beside the next face runs on behind this one), all of them more than the plane's noise (3 x
+    its inlier RMS) on one side and their mean too (a thin plate's face also has the plane beyond its other
+    face, behind it, within reach). Fewer such points than one neighbourhood (k) are no contact line:
+    none are returned."""
+    member = np.zeros(len(P), dtype=bool)
+    member[plane.inliers] = True
+    on = member[idx]
+    h = plane.distance(P)
+    reach = np.linalg.norm(P[idx[:, -1]] - P, axis=1)  # the neighbourhood's radius
+    # beside the contact: off the plane's band, but within the neighbourhood's reach of the plane (not a
+    # face high above a plane seen through a root gap); and steep (normal >= 45 deg from the plane's):
+    # shallower faces meet the plane at >= 135 deg, where the sign propagation holds
+    steep = np.abs(N @ plane.normal) < np.cos(np.pi / 4)
+    rows = np.flatnonzero(~member & (h > plane.tol) & (h < reach) & steep & on.any(axis=1))
+    if not len(rows):
+        return rows, np.zeros(0)
+    D = P[idx[rows]] - P[rows, None, :]
+    off = np.einsum("ikj,ij->ik", D, N[rows])
+    # only plane points across the contact line from the point (beside its own face): at a corner of the
+    # part's footprint the plane beside the next face runs on behind this face's plane
+    line = np.cross(N[rows], plane.normal)
+    line /= np.maximum(np.linalg.norm(line, axis=1, keepdims=True), 1e-12)
+    on = on[rows] & (np.abs(np.einsum("ikj,ij->ik", D, line)) < np.abs(off))
+    keep = on.any(axis=1)
+    rows, off, on = rows[keep], off[keep], on[keep]
+    mean = np.where(on, off, 0.0).sum(axis=1) / on.sum(axis=1)
+    band = 3.0 * plane.rms
+    # every plane neighbour on one side: a thin plate's face also has the table beyond its other face
+    # (behind it) among its neighbours
+    agree = np.all(~on | (off * np.sign(mean)[:, None] > band), axis=1)
+    sure = agree & (np.abs(mean) > band)
+    if sure.sum() < idx.shape[1]:  # fewer than one neighbourhood's worth: stray points, no contact line
+        return rows[:0], np.zeros(0)
+    return rows[sure], np.where(mean[sure] > 0, 1.0, -1.0)
+
+
 def drop_contact(
     P: np.ndarray, tree, seams: list, plane: SupportPlane, radius: float, min_length: float
 ) -> list:
