@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 from weldcell.sdk.errors import DataError
 
 from ..cloud_numerics import NeighbourTable, noise_level, sampling_spacings
+from . import scales
 from .candidates import classify_edges, point_normals
 from .chaining import Bridging, _cluster_pieces, _end_directions, _Piece, bridge_pieces
 from .edges import _usable_table, edge_scores
@@ -313,6 +314,8 @@ def extract_seams(
         # report the part's convex ridges (a thin corner's roof) as concave seams facing the table.
         N, plane = _normals(P, tree, normals, s, table, fine, coarse, find_support=False)
         labels, seams, support = _seams_on(P, N, tree, edge, None, s, r, r_fine, viewpoints)
+    if not seams:  # the joint's faces may be narrower than the side fits' radius: a finer reading
+        seams = _fine_seams(P, N, tree, edge, labels, support, s, (r, r_fine), (fine, coarse), viewpoints)
     params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
     params.update(spacing=(fine, coarse), support=None if support is None else support.normal.tolist())
     return SeamExtraction(edge, score, I, labels, seams, r, params)
@@ -371,6 +374,33 @@ def _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints):
         if support is not None:
             seams = drop_contact(P, tree, seams, support, cfg.side_radius, cfg.min_length)
     return labels, seams, support
+
+
+def _fine_seams(P, N, tree, edge, labels, support, s, radii, spacing, viewpoints):
+    """Seams at the fine radius (:mod:`~.scales`: a joint whose faces are narrower than the side fits'
+    class radius, e.g. a thin corner's notch), read when the stage's scale found none; ``labels`` take the
+    fine classes of the points used. ``radii``: eq. 11's r and r_fine, ``spacing``: (fine, coarse). No
+    seam when the sampling or the noise do not allow a finer reading (:func:`~.scales.fine_radius`,
+    :func:`~.scales.resolvable`)."""
+    cand = np.flatnonzero(edge)
+    (r, r_fine), (fine, coarse) = radii, spacing
+    Rf = scales.fine_radius(fine, coarse, s.coarse_reach)
+    if not len(cand) or Rf > scales.FINE_GAIN * s.class_radius(r, r_fine):  # the same structure
+        return []
+    if coarse > ANISOTROPIC * fine:  # a line scan: no disc finer than its line gap (see scales)
+        return []
+    if not scales.resolvable(Rf, scales.cloud_noise(P, fine, coarse, s.coarse_reach)):
+        return []
+    i, lab, appr = scales.fine_candidates(P, N, tree, cand, labels[cand], Rf, s, viewpoints)
+    keep = ~on_support(P, tree, support, P[cand[i]], Rf)
+    i, lab, appr = i[keep], lab[keep], appr[keep]
+    cfg_f = scales.fine_chain(s.chain(r, r_fine), Rf, s)
+    seams = chain_seams(P, N, tree, cand[i], lab, appr, cfg_f)
+    if support is not None:
+        seams = drop_contact(P, tree, seams, support, cfg_f.side_radius, cfg_f.min_length)
+    if seams:
+        labels[cand[i]] = lab
+    return seams
 
 
 def _wide_enough(k_max: int, reach: float, fine: float, coarse: float) -> int:
