@@ -334,7 +334,9 @@ def run_seam(cloud: Path, out: Path, extra: list[str]) -> Run:
     """``weldcell seam CLOUD -o OUT EXTRA...`` as a subprocess; the seams from the written JSON."""
     import time
 
-    args = [str(WELDCELL), "seam", str(cloud), "-o", str(out), *extra]
+    # the tree's own CLI; a worktree without its own .venv runs it with this interpreter (PYTHONPATH kept)
+    cli = [str(WELDCELL)] if WELDCELL.exists() else [sys.executable, "-m", "weldcell.sdk.cli"]
+    args = [*cli, "seam", str(cloud), "-o", str(out), *extra]
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
@@ -423,6 +425,8 @@ def diagnose(P: np.ndarray, truth: list[np.ndarray], viewpoint: tuple | None = N
     out = {"points": len(Q), "fine": fine, "coarse": coarse, "radius": ex.radius,
            "edge_share": float(ex.edge_mask.mean()), "support": ex.params.get("support"),
            "seams": len(ex.seams)}
+    structure = getattr(clean, "structure", None)  # the scan's structure (a tree before 2026-11-25: none)
+    out["structure"] = structure.summary() if structure is not None else "-"
     if truth:
         T = np.vstack([resample(x) for x in truth])
         E = np.flatnonzero(ex.edge_mask)
@@ -532,8 +536,8 @@ def diagnosis_table(rows: list[dict]) -> list[str]:
     """Where the marked seam is lost inside the stage (defaults; :func:`diagnose`)."""
     lines = [
         "| scan | points after denoise | spacing fine / coarse, r (mm) | eq. 16 edge points (all) "
-        "| marked seam with an edge point within 3 mm | their classes | support plane |",
-        "|" + "---|" * 7,
+        "| marked seam with an edge point within 3 mm | their classes | support plane | scan structure |",
+        "|" + "---|" * 8,
     ]
     for r in rows:
         d = r["diagnosis"]
@@ -541,7 +545,8 @@ def diagnosis_table(rows: list[dict]) -> list[str]:
         share = f"{d['truth_edge_share']:.0%}" if "truth_edge_share" in d else "-"
         sup = "none" if d["support"] is None else "n = (" + ", ".join(f"{v:.2f}" for v in d["support"]) + ")"
         lines.append(f"| {r['scan'].name} | {d['points']} | {d['fine'] * 1e3:.1f} / {d['coarse'] * 1e3:.1f}, "
-                     f"{d['radius'] * 1e3:.1f} | {d['edge_share']:.0%} | {share} | {labels} | {sup} |")
+                     f"{d['radius'] * 1e3:.1f} | {d['edge_share']:.0%} | {share} | {labels} | {sup} "
+                     f"| {d.get('structure', '-')} |")
     return lines
 
 

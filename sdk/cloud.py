@@ -11,6 +11,11 @@ What one stage hands the next travels in typed fields, never in ``meta`` (free-f
   stage leaves for the next). It holds a copy of the points it was built for and is given only while
   the cloud's points are exactly those; any new cloud (select, transform, a stage's output) starts
   without it.
+* ``structure``: a :class:`ScanStructure`, how the scan was sampled (area or line scan, spacings along
+  and across its lines, surface noise), measured once on the cloud as captured
+  (``weldcell.plugins.scan_plan.scan_structure``). It belongs to the scan, not to the exact points: a
+  crop, a transform or a stage's filtered output (:meth:`PointCloud.with_points`) keeps it;
+  :meth:`PointCloud.scaled` scales it. Not written to files (it is measured again from the points).
 """
 
 from __future__ import annotations
@@ -100,6 +105,63 @@ class NeighbourTable:
         return P is self.points or bool(np.array_equal(P, self.points))
 
 
+@dataclass(frozen=True)
+class ScanStructure:
+    """How a cloud was sampled (lengths in m), measured from the cloud alone by
+    ``weldcell.plugins.scan_plan.scan_structure.scan_structure``.
+
+    ``line_structured``: the cloud is a stack of planar slices (a swept line scanner), decided by
+    ``line_share`` (share of sampled points on a slice). ``spacing`` / ``mean_spacing``: median / mean
+    nearest-neighbour distance. ``along_spacing``: between neighbours along a line; ``sheet_gap``: between
+    the planes of adjacent slices; ``line_spacing`` / ``line_spacing_hi``: median / upper quartile between
+    adjacent lines *on the surface* (for an area scan all four equal ``spacing``, ``line_spacing_hi`` its
+    upper quartile). ``sheet_thickness``: RMS of a slice's points off its plane (0 for an area scan).
+    ``noise``: the surface's noise, RMS along its normal, over neighbourhoods that span at least two
+    lines. ``span_radius``: radius of a neighbourhood that reaches the next line on both sides;
+    ``span_neighbours``: points such a disc holds (median). ``sample``: points the estimates are medians
+    over.
+    """
+
+    line_structured: bool
+    line_share: float
+    spacing: float
+    mean_spacing: float
+    along_spacing: float
+    sheet_gap: float
+    line_spacing: float
+    line_spacing_hi: float
+    sheet_thickness: float
+    noise: float
+    span_radius: float
+    span_neighbours: int
+    sample: int
+
+    @property
+    def anisotropy(self) -> float:
+        """``line_spacing / along_spacing`` (1 for an area scan)."""
+        return self.line_spacing / self.along_spacing
+
+    def scaled(self, factor: float) -> ScanStructure:
+        """The same structure with every length multiplied by ``factor`` (a unit change)."""
+        lengths = ("spacing", "mean_spacing", "along_spacing", "sheet_gap", "line_spacing", "line_spacing_hi")
+        more = ("sheet_thickness", "noise", "span_radius")
+        return replace(self, **{k: getattr(self, k) * factor for k in lengths + more})
+
+    def summary(self) -> str:
+        """One line for logs and reports (mm)."""
+        tail = (
+            f"noise {self.noise * 1e3:.3f} mm, span radius {self.span_radius * 1e3:.2f} mm "
+            f"({self.span_neighbours} points)"
+        )
+        share = f"{self.line_share:.0%} of points on slices"
+        if not self.line_structured:
+            return f"area scan ({share}): spacing {self.spacing * 1e3:.2f} mm, {tail}"
+        return (
+            f"line scan ({share}): spacing {self.along_spacing * 1e3:.2f} mm along, "
+            f"{self.line_spacing * 1e3:.2f} mm across (sheets {self.sheet_gap * 1e3:.2f} mm apart), {tail}"
+        )
+
+
 def _as_viewpoints(views) -> np.ndarray | None:
     """Viewpoints as a finite (V, 3) float array (None for none)."""
     if views is None:
@@ -127,7 +189,9 @@ class PointCloud:
     ``viewpoints`` (V, 3, optional): the sensor positions of the views the points came from, in
     ``frame`` (the seam stage orients normals toward them). ``meta``: free-form notes (source file,
     counts) that no stage relies on. :attr:`neighbours`: an optional :class:`NeighbourTable` cache, set
-    with :meth:`with_neighbours`, given only while it belongs to ``points``.
+    with :meth:`with_neighbours`, given only while it belongs to ``points``. ``structure`` (optional):
+    the scan's :class:`ScanStructure`, measured on the cloud as captured and kept by its crops,
+    transforms and filtered versions.
     """
 
     points: np.ndarray
@@ -136,6 +200,7 @@ class PointCloud:
     frame: str = "base"
     meta: dict = field(default_factory=dict)
     viewpoints: np.ndarray | None = None
+    structure: ScanStructure | None = None
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=float).reshape(-1, 3)
@@ -156,6 +221,11 @@ class PointCloud:
                 stacklevel=3,
             )
         self.viewpoints = _as_viewpoints(self.viewpoints)
+        if self.structure is not None and not isinstance(self.structure, ScanStructure):
+            raise DataError(
+                f"a cloud's structure must be a ScanStructure, got {type(self.structure).__name__}",
+                "measure it with weldcell.plugins.scan_plan.scan_structure.scan_structure(points)",
+            )
         self._neighbours: NeighbourTable | None = None
 
     def __len__(self) -> int:
@@ -207,6 +277,12 @@ class PointCloud:
         cloud builds its output with this, so nothing the next stage needs is lost."""
         return replace(self, points=points, normals=normals, colors=colors, meta=dict(self.meta))
 
+    def with_structure(self, structure: ScanStructure | None) -> PointCloud:
+        """This cloud (same arrays, same neighbour table) with the scan's ``structure``."""
+        out = replace(self, meta=dict(self.meta), structure=structure)
+        out._neighbours = self.neighbours
+        return out
+
     def with_viewpoints(self, viewpoints: np.ndarray | None) -> PointCloud:
         """This cloud (same arrays, same neighbour table) with ``viewpoints`` (V, 3, in ``frame``)."""
         out = replace(self, meta=dict(self.meta), viewpoints=viewpoints)
@@ -243,6 +319,7 @@ class PointCloud:
             points=self.points * factor,
             meta=dict(self.meta),
             viewpoints=None if self.viewpoints is None else self.viewpoints * factor,
+            structure=None if self.structure is None else self.structure.scaled(factor),
         )
 
     def to_open3d(self):

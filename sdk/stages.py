@@ -51,9 +51,9 @@ class DenoiseStage(Protocol):
 
 def denoised_scan(scan: PointCloud, out: PointCloud) -> PointCloud:
     """A denoise stage's output ``out`` with what it must keep of its input ``scan``: the frame (a
-    stage that moved the cloud is refused with :class:`PluginError`) and the viewpoints (carried over
+    stage that moved the cloud is refused with :class:`PluginError`), the viewpoints (carried over
     when the stage built its output without them: they are where the sensor was, whichever points
-    remain)."""
+    remain) and the scan's ``structure`` (how it was sampled, measured on the cloud as captured)."""
     if not isinstance(out, PointCloud):
         raise PluginError(
             f"the denoise stage returned a {type(out).__name__}, not a PointCloud",
@@ -66,6 +66,8 @@ def denoised_scan(scan: PointCloud, out: PointCloud) -> PointCloud:
         )
     if out.sensor_viewpoints() is None and scan.sensor_viewpoints() is not None:
         out = out.with_viewpoints(scan.sensor_viewpoints())
+    if out.structure is None and scan.structure is not None:
+        out = out.with_structure(scan.structure)
     return out
 
 

@@ -43,9 +43,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+from weldcell.sdk.cloud import ScanStructure
 from weldcell.sdk.errors import DataError
 
 from .cloud_numerics import as_points, sym3_eigvals, sym3_eigvec
+
+__all__ = ["ScanStructure", "scan_structure"]
 
 #: points of the plane fitted at each sampled point to find its sheet (itself included): few, so that on a
 #: profiler with 1 mm along a line and 5 mm between lines it stays in one line
@@ -72,57 +75,6 @@ LINE_SHARE = 0.04
 ANISOTROPY = 2.0
 #: a slice's sheet is tilted at most this much from the surface (|sin| floor of line_spacing's formula)
 MIN_SIN = 0.2
-
-
-@dataclass(frozen=True)
-class ScanStructure:
-    """The sampling structure of a cloud (lengths in m), from :func:`scan_structure`.
-
-    ``line_structured``: the cloud is a stack of planar slices (a swept line scanner), decided by
-    ``line_share`` (share of sampled points on a slice, >= :data:`LINE_SHARE`). ``spacing`` /
-    ``mean_spacing``: median / mean nearest-neighbour distance. ``along_spacing``: between neighbours
-    along a line; ``sheet_gap``: between the planes of adjacent slices; ``line_spacing`` /
-    ``line_spacing_hi``: median / upper quartile between adjacent lines *on the surface* (for an area
-    scan all four equal ``spacing``, ``line_spacing_hi`` its upper quartile). ``sheet_thickness``: RMS
-    of a slice's points off its plane (0 for an area scan). ``noise``: the surface's noise, RMS along its
-    normal, over neighbourhoods that span at least two lines. ``span_radius``: radius of a neighbourhood
-    that reaches the next line on both sides (normals, edge tests, noise need at least this);
-    ``span_neighbours``: points such a disc holds (median). ``sample``: points the estimates are medians
-    over.
-    """
-
-    line_structured: bool
-    line_share: float
-    spacing: float
-    mean_spacing: float
-    along_spacing: float
-    sheet_gap: float
-    line_spacing: float
-    line_spacing_hi: float
-    sheet_thickness: float
-    noise: float
-    span_radius: float
-    span_neighbours: int
-    sample: int
-
-    @property
-    def anisotropy(self) -> float:
-        """``line_spacing / along_spacing`` (1 for an area scan)."""
-        return self.line_spacing / self.along_spacing
-
-    def summary(self) -> str:
-        """One line for logs and reports (mm)."""
-        tail = (
-            f"noise {self.noise * 1e3:.3f} mm, span radius {self.span_radius * 1e3:.2f} mm "
-            f"({self.span_neighbours} points)"
-        )
-        share = f"{self.line_share:.0%} of points on slices"
-        if not self.line_structured:
-            return f"area scan ({share}): spacing {self.spacing * 1e3:.2f} mm, {tail}"
-        return (
-            f"line scan ({share}): spacing {self.along_spacing * 1e3:.2f} mm along, "
-            f"{self.line_spacing * 1e3:.2f} mm across (sheets {self.sheet_gap * 1e3:.2f} mm apart), {tail}"
-        )
 
 
 @dataclass

@@ -111,7 +111,11 @@ class BilateralDenoiser:
 
     Returns the input cloud's scan (frame, viewpoints, meta) with the filtered points and their normals
     (:meth:`PointCloud.with_points`); after one pass the output also carries its neighbour table
-    (:attr:`PointCloud.neighbours`), which the seam stage reuses instead of searching again.
+    (:attr:`PointCloud.neighbours`), which the seam stage reuses instead of searching again. The scan's
+    :class:`~weldcell.sdk.cloud.ScanStructure` (the input's, else measured on the cropped input before
+    the voxel grid, where a line scan's profiles are still planar sheets,
+    :func:`~weldcell.plugins.scan_plan.scan_structure.scan_structure`) travels with the output for the
+    seam stage.
     """
 
     #: neighbours per point of the shared table (the seam stage's ``k_max``)
@@ -127,6 +131,7 @@ class BilateralDenoiser:
     def __call__(self, cloud: PointCloud) -> PointCloud:
         from weldcell.plugins.scan_plan.cloud_numerics import knn_table, mean_spacing, voxel_downsample
         from weldcell.plugins.scan_plan.denoise import bilateral_filter
+        from weldcell.plugins.scan_plan.scan_structure import scan_structure
 
         check_cloud(cloud, "cloud to denoise", min_points=10)
         P = cloud.points
@@ -137,8 +142,11 @@ class BilateralDenoiser:
             keep &= np.all(P <= np.asarray(self.s.crop_max), axis=1)
         P = P[keep]
         check_cloud(PointCloud(P), "cloud inside the crop box", min_points=10)
+        raw_tree = cKDTree(P, balanced_tree=False, compact_nodes=False)
+        structure = cloud.structure if cloud.structure is not None else scan_structure(P, tree=raw_tree)
+        cloud = cloud.with_structure(structure)
         if self.s.voxel_factor > 0:
-            sp = mean_spacing(P, sample=self.spacing_sample)
+            sp = mean_spacing(P, sample=self.spacing_sample, tree=raw_tree)
             P = voxel_downsample(P, voxel_size=max(self.s.voxel_factor * sp, self.s.min_voxel))
         normals = None
         if self.s.iterations > 0:
@@ -277,6 +285,7 @@ class EdgeSeamExtractor:
         self.s = s
 
     def __call__(self, cloud: PointCloud):
+        from weldcell.plugins.scan_plan.scan_structure import scan_structure
         from weldcell.plugins.scan_plan.seams import extract_seams
 
         check_cloud(cloud, "cloud for seam extraction", min_points=self.s.m + 1)
@@ -296,6 +305,7 @@ class EdgeSeamExtractor:
             wall_radius=self.s.wall_radius,
             neighbours=cloud.neighbours,
             viewpoints=cloud.sensor_viewpoints(),
+            structure=cloud.structure if cloud.structure is not None else scan_structure(cloud.points),
         )
 
 

@@ -7,6 +7,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
+from weldcell.sdk.cloud import ScanStructure
 from weldcell.sdk.errors import DataError
 
 from ..cloud_numerics import NeighbourTable, noise_level, sampling_spacings
@@ -248,6 +249,7 @@ def extract_seams(
     *,
     neighbours: NeighbourTable | None = None,
     viewpoints: np.ndarray | None = None,
+    structure: ScanStructure | None = None,
     **overrides: object,
 ) -> SeamExtraction:
     """Edge points (eqs. 11-17) and ordered weld seams of a cloud in metres.
@@ -292,19 +294,23 @@ def extract_seams(
         wall_radius: radius (m) of the quadric wall patches that place the nodes and approach of curved
             and closed seams (default 4 x ``fit_radius``, 32 mm; 0 keeps the side planes), see
             :mod:`~weldcell.plugins.scan_plan.wall_quadrics`.
+        structure: optional :class:`~weldcell.sdk.cloud.ScanStructure` of the scan, measured on the cloud
+            as captured (the job's ``cloud.structure``). On a line scan its spacing between lines and its
+            noise (across lines) replace the ones measured here (:func:`_sampling`); on an area scan, or
+            without it, the stage measures them on ``points``.
     """
     s = SeamSettings.of(settings, **overrides)
     s.check()
     P = _as_points(points, s.m)
     tree = cKDTree(P)
-    fine, coarse = sampling_spacings(P, tree)
+    fine, coarse, line_noise = _sampling(P, tree, structure)
     es = _edge_step(P, tree, s, neighbours, fine, coarse)
     I, score, r = es.intensity, es.ratio, es.radius
     r_fine = min(r, s.radius_factor * fine) if s.radius is None else r
     table = _usable_table(P, neighbours)
     with np.errstate(invalid="ignore"):
         edge = (score >= s.t) & (I >= s.min_intensity)
-    N, plane = _normals(P, tree, normals, s, table, fine, coarse)
+    N, plane = _normals(P, tree, normals, s, table, fine, coarse, noise=line_noise)
     labels, seams, support = _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints)
     if not seams and plane is not None and plane.ambiguous and normals is None and s.up is None:
         # The plane hypothesis left no seam: a lone plate's face can pass for a table (its groove then
@@ -312,13 +318,33 @@ def extract_seams(
         # as before support planes existed. Not when the plane surely holds the part (a table or fixture
         # reaching beyond it): its orientation stands, and the re-reading, whose normals all flip, would
         # report the part's convex ridges (a thin corner's roof) as concave seams facing the table.
-        N, plane = _normals(P, tree, normals, s, table, fine, coarse, find_support=False)
+        N, plane = _normals(P, tree, normals, s, table, fine, coarse, find_support=False, noise=line_noise)
         labels, seams, support = _seams_on(P, N, tree, edge, None, s, r, r_fine, viewpoints)
     if not seams:  # the joint's faces may be narrower than the side fits' radius: a finer reading
         seams = _fine_seams(P, N, tree, edge, labels, support, s, (r, r_fine), (fine, coarse), viewpoints)
     params = dict(m=s.m, t=s.t, radius=r, sigma=s.sigma, floor=s.floor, min_intensity=s.min_intensity)
     params.update(spacing=(fine, coarse), support=None if support is None else support.normal.tolist())
     return SeamExtraction(edge, score, I, labels, seams, r, params)
+
+
+def _sampling(
+    P: np.ndarray, tree: cKDTree, structure: ScanStructure | None
+) -> tuple[float, float, float | None]:
+    """``(fine, coarse, noise)``: the cloud's spacings along its finest and coarsest sampling directions
+    (m) and, on a line scan, its surface noise (m; None: measure it on ``P``, :func:`noise_level`).
+
+    Both spacings are measured on ``P`` (:func:`sampling_spacings`), except on a line scan
+    (``structure.line_structured``), whose ``fine`` spacing is the one along its lines and whose noise
+    is the one across its lines, both measured on the scan as captured (:class:`ScanStructure`): on the
+    stage's cloud the voxel grid has thinned the lines (nearest neighbour 1.2-1.5 mm where the profiler
+    samples 0.7-1.3 mm) and k-nearest noise estimates stay within one laser sheet (its flatness, not the
+    surface's noise). The coarse spacing stays the measured one: where two sweeps cross (a quarter of
+    the set's profiler scans) the structure's line spacing is one sweep's, while the cloud's lines lie
+    closer; the choice was measured on the 77 line-laser cases (seams doc, "Scan structure wired")."""
+    fine, coarse = sampling_spacings(P, tree)
+    if structure is None or not structure.line_structured:
+        return fine, coarse, None
+    return min(structure.along_spacing, fine), coarse, structure.noise
 
 
 def _edge_step(
@@ -418,6 +444,7 @@ def _normals(
     fine: float,
     coarse: float,
     find_support: bool = True,
+    noise: float | None = None,
 ) -> tuple[np.ndarray, SupportPlane | None]:
     """Oriented PCA normals and the plane the part rests on (:func:`~.support.support_plane`, None when
     the scan holds none or ``find_support`` is False). Normals are oriented along ``normals`` when
@@ -426,7 +453,8 @@ def _normals(
     The PCA neighbourhood holds 10 points, or as many as reach ``s.coarse_reach`` x the coarse spacing
     (an anisotropic scan: coarse spacing above ``ANISOTROPIC`` x the fine one); the RANSAC band of the
     support comes from the cloud's noise
-    (:func:`~weldcell.plugins.scan_plan.cloud_numerics.noise_level` within that reach)."""
+    (:func:`~weldcell.plugins.scan_plan.cloud_numerics.noise_level` within that reach, or ``noise``
+    when given: a line scan's, measured across its lines)."""
     oriented = None
     if normals is not None:
         oriented = np.asarray(normals, dtype=float)
@@ -435,7 +463,7 @@ def _normals(
                 f"normals must be a finite {P.shape} array, got {oriented.shape}",
                 "pass one normal per point or normals=None",
             )
-    anisotropic = coarse > ANISOTROPIC * fine
+    anisotropic = coarse > ANISOTROPIC * fine or noise is not None  # noise given: a line scan
     k = min(_wide_enough(10, s.coarse_reach * coarse, fine, coarse) if anisotropic else 10, len(P))
     up = np.asarray(s.up, dtype=float) if s.up is not None else None
     if oriented is not None or up is not None:
@@ -446,7 +474,9 @@ def _normals(
         N = point_normals(P, tree, k, None, None, None, idx=idx)
     plane = None
     if find_support:
-        noise = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
+        measured = noise_level(P, max(3.0 * fine, s.coarse_reach * coarse), sample=4000)
+        # a line scan's noise across its lines; never below what the neighbourhoods here read
+        noise = measured if noise is None else max(noise, measured)
         plane = support_plane(P, N, noise, fine, margin=max(s.fit_radius or 0.0, 0.008))
     if idx is not None:
         N = scan_side_normals(P, N, idx, plane, contact=not anisotropic)
