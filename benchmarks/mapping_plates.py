@@ -4,8 +4,9 @@ key-frame store, with the estimated and with the true key-frame poses, and show 
 to the depth images (plate.py's measurement, plate_fit.py) and, with ``--points``, the points' interval
 measurement it starts from (the measurement before the box fit).
 
-The pixels are those of the key frames that saw the plate's region, within the region's own points'
-oriented box + 0.15 m, as the job takes them; with ``--truth-crop`` within 0.55 m (horizontally) and
+The pixels are those of the key frames that saw the plate's region, within the box the job took them
+from (``pixels_box`` in regions.json; a run without it: the region's points' oriented box + 0.15 m,
+close to the job's 2-98 % extent + 0.15 m); with ``--truth-crop`` within 0.55 m (horizontally) and
 0.25 m (vertically) of the plate's true centre instead (the truth then only chooses which pixels are
 handed over; the measurement never sees it).
 
@@ -91,12 +92,24 @@ def main() -> None:
         "as the job)",
     )
     ap.add_argument("--max-distance", type=float, help="only key frames this close to the plate [m]")
+    ap.add_argument(
+        "--no-pose-correction", action="store_true", help="the box fit without the per-pass pose correction"
+    )
+    ap.add_argument(
+        "--pose-sigma",
+        type=float,
+        nargs=3,
+        metavar=("MRAD_RP", "MRAD_YAW", "MM"),
+        help="for a store without key-frame covariances: an assumed pose sigma per key frame instead (roll "
+        "and pitch, yaw in mrad, translation in mm; stated in the output; not the estimator's)",
+    )
     args = ap.parse_args()
     from weldcell.hal.sim.site import install_site
     from weldcell.hal.sim.world import SimWorld
     from weldcell.plugins.mapping.interp import ate_rmse
     from weldcell.plugins.mapping.mapstore import KeyFrameStore
     from weldcell.plugins.mapping.plate import frame_observations, merge, plate_corners_points, plate_fit
+    from weldcell.plugins.mapping.plate_poses import camera_pose_cov
     from weldcell.plugins.mapping.regions import corner_distance_error, plate_corners
 
     site = install_site(SimWorld([]), seed=args.seed)
@@ -107,6 +120,14 @@ def main() -> None:
     ref = np.array([truth[round(recs[i].t, 6)][:3, 3] for i in sorted(recs)])
     ate, A = ate_rmse(est, ref)
     print(f"{len(recs)} key frames, ATE {ate:.4f} m")
+    have_cov = sum(r.covariance is not None for r in recs.values())
+    sub = None
+    if args.pose_sigma and have_cov < len(recs):
+        rp, yaw, tr = np.asarray(args.pose_sigma) * 1e-3
+        sub = np.diag([rp**2, rp**2, yaw**2] + [tr**2] * 3)  # body frame: z is near the vertical
+        print(f"key frames without covariance: {len(recs) - have_cov}; ASSUMED pose sigma {args.pose_sigma}")
+    else:
+        print(f"key frames with the estimator's pose covariance: {have_cov} of {len(recs)}")
     regions = json.loads((args.run / "regions.json").read_text())["regions"]
     K = store.intrinsics
     rows = []
@@ -135,24 +156,35 @@ def main() -> None:
         out = {}
         for which in ("estimated", "true"):
             obs = []
+            # the estimated poses in the map's own frame with the job's crop there (corners mapped to the
+            # truth frame by A afterwards: AE does not depend on it, the edges' errors do); the true poses
+            # in the truth frame with the crop's corners mapped there
+            M = np.eye(4) if which == "estimated" else A
+            if not args.truth_crop and "pixels_box" in r:  # the job's own crop (runs since issue 11)
+                lo, hi = (np.asarray(b, float) for b in r["pixels_box"])
+                V = np.array(np.meshgrid(*zip(lo, hi, strict=True))).reshape(3, -1).T
+            elif not args.truth_crop:  # older runs: the region's points' oriented box + 0.15 m
+                ob = r["oriented_box"]
+                Rb, e = np.asarray(ob["R"]), np.asarray(ob["extent"]) / 2
+                V = (
+                    np.asarray(ob["center"])
+                    + (np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T * e) @ Rb.T
+                )
+            else:
+                lo, hi = plate.center - [0.55, 0.55, 0.25], plate.center + [0.55, 0.55, 0.25]
+                V = np.array(np.meshgrid(*zip(lo, hi, strict=True))).reshape(3, -1).T
+                V = (V - A[:3, 3]) @ A[:3, :3]  # the truth frame -> the map's (M maps back for the truth)
+            V = V @ M[:3, :3].T + M[:3, 3]
+            margin = 0.15 if not args.truth_crop and "pixels_box" not in r else 0.0
+            lo, hi = V.min(0) - margin, V.max(0) + margin
             for i in views:
-                Tt = truth[round(recs[i].t, 6)]
-                if which == "estimated":  # in the truth's frame (AE is invariant to it; edges are not)
-                    T = A @ recs[i].T_world_cam
-                else:
-                    T = Tt
-                if not args.truth_crop:  # as the job: the region's extent (its points' oriented box) + 0.15 m
-                    ob = r["oriented_box"]
-                    Rb, e = np.asarray(ob["R"]), np.asarray(ob["extent"]) / 2
-                    V = (
-                        np.asarray(ob["center"])
-                        + (np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T * e) @ Rb.T
-                    )
-                    V = V @ A[:3, :3].T + A[:3, 3]  # the map frame -> the truth frame (as the poses)
-                    lo, hi = V.min(0) - 0.15, V.max(0) + 0.15
-                else:
-                    lo, hi = plate.center - [0.55, 0.55, 0.25], plate.center + [0.55, 0.55, 0.25]
-                obs.append(frame_observations(store.read(recs[i])["depth"], K, T, lo, hi, args.depth_noise))
+                T = recs[i].T_world_cam if which == "estimated" else truth[round(recs[i].t, 6)]
+                cov = recs[i].covariance if recs[i].covariance is not None else sub
+                pc = None
+                if which == "estimated" and cov is not None and not args.no_pose_correction:
+                    pc = camera_pose_cov(recs[i].T_world_imu, cov, T)
+                depth = store.read(recs[i])["depth"]
+                obs.append(frame_observations(depth, K, T, lo, hi, args.depth_noise, i, pc))
             merged = merge(obs)
             note = ""
             if args.rectangle:
@@ -165,10 +197,23 @@ def main() -> None:
                 corners = fit.corners if fit is not None and fit.ok else None
                 note = "" if fit is None else f"{fit.reason} {fit.labels}"
                 print(f"{plate.name} ({which} poses): box fit {time.process_time() - t0:.1f} s CPU {note}")
+                if fit is not None:
+                    sd = np.sqrt(np.abs(np.diag(fit.cov)))[3:5] * 1000
+                    L, W = fit.params[3:5]
+                    print(f"  length {L:.4f} m ± {sd[0]:.1f} mm, width {W:.4f} m ± {sd[1]:.1f} mm")
+                    for ps in fit.passes:
+                        kf = ps["keyframes"]
+                        xi = np.asarray(ps["xi"])
+                        print(
+                            f"  pass {kf[0]}-{kf[-1]} ({len(kf)}): rot {np.round(xi[:3] * 1000, 1)} mrad, "
+                            f"t {np.round(xi[3:] * 1000, 1)} mm, d2 {ps['d2']:.1f}"
+                        )
             if corners is None:
                 print(f"{plate.name} ({which} poses): not measured {note}")
                 out[which] = None
                 continue
+            if which == "estimated":
+                corners = corners @ A[:3, :3].T + A[:3, 3]
             out[which] = (corner_distance_error(corners, plate.corners), corners)
         Tv = [truth[round(recs[i].t, 6)] for i in views]
         pv = plate_views(Tv, plate)

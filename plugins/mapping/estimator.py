@@ -426,6 +426,7 @@ class VioEstimator:
             kf.velocity = np.asarray(est.atVector(V(kf.index)))
             b = est.atConstantBias(B(kf.index))
             kf.bias = np.concatenate([b.accelerometer(), b.gyroscope()])
+        self._pose_covariances(est)
         self.timing["global"] = [_time_now() - t0]
         self._event(
             self.keyframes[-1].t,
@@ -434,6 +435,20 @@ class VioEstimator:
             f"{len(self.global_graph.loops)} loop closures, {1000 * self.timing['global'][0]:.0f} ms",
         )
         return True
+
+    def _pose_covariances(self, est: gtsam.Values) -> None:
+        """Each key frame's pose covariance from the global batch (gtsam ``Marginals`` at the batch
+        estimate): 6x6 in gtsam's Pose3 tangent space, [rotation, translation] of the IMU body frame (the
+        perturbation T_world_imu · Exp(ξ)). It is the marginal relative to the world (the first key frame's
+        prior), so it grows with the distance driven where GNSS and loops do not hold it. Left None (with a
+        warning event) when the marginals cannot be computed."""
+        try:
+            marg = gtsam.Marginals(self.global_graph.graph, est)
+            for kf in self.keyframes:
+                kf.covariance = np.asarray(marg.marginalCovariance(X(kf.index)), float)
+        except RuntimeError as e:
+            why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            self._event(self.keyframes[-1].t, "warning", f"key-frame pose covariances not computed: {why}")
 
     def _visual_factors(self, graph, k: int, feats, K, pnp, T_world_imu: np.ndarray) -> bool:
         any_ok = False

@@ -87,7 +87,7 @@ def build_map(ctx, tr) -> tuple[VoxelMap, dict]:
     ms = ctx.settings.map
     vm = VoxelMap(ms.voxel)
     poses = {k.index: (k.T_world_imu, k.T_world_imu @ tr.estimator.T_imu_cam) for k in tr.estimator.keyframes}
-    tr.store.update_poses(poses)
+    tr.store.update_poses(poses, {k.index: k.covariance for k in tr.estimator.keyframes})
     tr.store.save_index()
     cache = {}
     for r in tr.store.records:
@@ -154,6 +154,12 @@ def _region_tsdf(ctx, tr, region) -> np.ndarray | None:
     return np.asarray(mesh.vertices)
 
 
+def region_crop(region) -> tuple[np.ndarray, np.ndarray]:
+    """The world box whose depth pixels the plate measurement takes: the region's robust extent (2-98 %
+    of its points) + 0.15 m (written to regions.json as ``pixels_box``, so a benchmark takes the same)."""
+    return np.percentile(region.points, 2, axis=0) - 0.15, np.percentile(region.points, 98, axis=0) + 0.15
+
+
 def region_pixels(ctx, tr, region, poses: dict | None = None):
     """The depth pixels of every key frame that observed ``region`` (at ``poses``: key frame ->
     T_world_cam, default the store's), within the region's robust extent + 0.15 m, with their rays and
@@ -162,8 +168,9 @@ def region_pixels(ctx, tr, region, poses: dict | None = None):
 
     if len(region.points) < 20:
         return None
-    lo = np.percentile(region.points, 2, axis=0) - 0.15
-    hi = np.percentile(region.points, 98, axis=0) + 0.15
+    lo, hi = region_crop(region)
+    from weldcell.plugins.mapping.plate_poses import camera_pose_cov
+
     recs = {r.index: r for r in tr.store.records}
     obs = []
     for i in dict.fromkeys(region.observations):
@@ -171,9 +178,10 @@ def region_pixels(ctx, tr, region, poses: dict | None = None):
             continue
         T = recs[i].T_world_cam if poses is None else poses[i]
         d = tr.store.read(recs[i])
-        obs.append(
-            frame_observations(d["depth"], tr.store.intrinsics, T, lo, hi, ctx.settings.frontend.depth_noise)
-        )
+        cov = recs[i].covariance  # the key frame's pose error, for the box fit's pass corrections
+        pc = None if cov is None or poses is not None else camera_pose_cov(recs[i].T_world_imu, cov, T)
+        noise = ctx.settings.frontend.depth_noise
+        obs.append(frame_observations(d["depth"], tr.store.intrinsics, T, lo, hi, noise, i, pc))
     return merge(obs) if obs else None
 
 
@@ -220,18 +228,21 @@ def _interp_effect(t_kf: np.ndarray, T_kf: np.ndarray, tq: np.ndarray) -> dict:
     }
 
 
-def _plate_corners(region) -> tuple[np.ndarray | None, str]:
-    """A plate region's top corners and, when it is not measured, why. With the key frames' pixels the box
+def _plate_corners(region) -> tuple[np.ndarray | None, str, dict]:
+    """A plate region's top corners and, when it is not measured, why; and what the measurement used (the
+    passes whose poses it corrected, the sides' standard deviations). With the key frames' pixels the box
     fit (plate.py) measures it or says why the views do not determine it; a region without pixels (re-fused
     from points only) is measured on its points (its TSDF surface measures worse: docs/methods/mapping.md)."""
     obs = getattr(region, "plate", None)
     if obs is None:
         corners = plate_corners(region.points)
-        return corners, "" if corners is not None else "too few points on the plate's top"
+        return corners, "" if corners is not None else "too few points on the plate's top", {}
     fit = plate_fit(obs)
     if fit is None:
-        return None, "too few depth pixels on the plate's top"
-    return (fit.corners, "") if fit.ok else (None, fit.reason)
+        return None, "too few depth pixels on the plate's top", {}
+    sd = np.sqrt(np.abs(np.diag(fit.cov)))[3:5] * 1000 if np.all(np.isfinite(fit.cov)) else [np.nan] * 2
+    info = {"views": fit.views, "passes": len(fit.passes), "sides_sigma_mm": [float(v) for v in sd]}
+    return (fit.corners, "", info) if fit.ok else (None, fit.reason, info)
 
 
 def _region_errors(rig, regions, A) -> dict:
@@ -253,10 +264,13 @@ def _region_errors(rig, regions, A) -> dict:
         out["regions_found"] += 1
         r = best[0]
         if w["corners"] is not None:
-            corners, why = _plate_corners(r)
+            corners, why, info = _plate_corners(r)
             if corners is not None:
                 ae.append(corner_distance_error(corners, w["corners"]))
                 r.truth = w["name"]
+                out.setdefault("ae_per_plate", []).append(
+                    {"plate": w["name"], "ae_mm": 1000 * ae[-1], **info}
+                )
             else:  # reported, not guessed: the views do not determine the plate
                 unmeasured.append({"plate": w["name"], "reason": why})
         pos.append(best[1])
@@ -339,6 +353,7 @@ def _write_regions(ctx, regions, log) -> None:
                     "center": r.center.tolist(),
                     "oriented_box": r.oriented_box(),
                     "points": len(r.points),
+                    **({"pixels_box": [b.tolist() for b in region_crop(r)]} if len(r.points) >= 20 else {}),
                     "dense_surface": f"map/regions/{r.id}.ply"
                     if getattr(r, "dense", None) is not None
                     else None,

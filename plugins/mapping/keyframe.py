@@ -29,6 +29,9 @@ class KeyFrame:
     visual: bool = True
     """False when the key frame was placed by the IMU alone (tracking lost)."""
     truth: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    """6x6 covariance of ``T_world_imu`` after the global batch (gtsam Pose3 tangent space: [rotation,
+    translation], body frame); None before it or when it could not be computed."""
 
 
 @dataclass

@@ -178,8 +178,12 @@ class KeyFrameRecord:
     bias: np.ndarray
     file: str
     visual: bool = True
+    covariance: np.ndarray | None = None
+    """6x6 covariance of ``T_world_imu`` (gtsam Pose3 tangent space, [rotation, translation], body frame)
+    from the global batch; None when the run did not compute it (older stores: the field is optional)."""
 
     def to_json(self) -> dict:
+        extra = {} if self.covariance is None else {"covariance": np.asarray(self.covariance).tolist()}
         return {
             "index": self.index,
             "t": self.t,
@@ -190,6 +194,7 @@ class KeyFrameRecord:
             "bias": self.bias.tolist(),
             "file": self.file,
             "visual": self.visual,
+            **extra,
         }
 
 
@@ -247,11 +252,19 @@ class KeyFrameStore:
         self.save_index()
         return rec
 
-    def update_poses(self, poses: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
-        """Replace key-frame poses (index -> (T_world_imu, T_world_cam)) after optimisation."""
+    def update_poses(
+        self,
+        poses: dict[int, tuple[np.ndarray, np.ndarray]],
+        covariances: dict[int, np.ndarray | None] | None = None,
+    ) -> None:
+        """Replace key-frame poses (index -> (T_world_imu, T_world_cam)) after optimisation, and their
+        pose covariances where given (index -> 6x6; None keeps the stored one: a resumed run's poses are
+        the stored ones)."""
         for r in self.records:
             if r.index in poses:
                 r.T_world_imu, r.T_world_cam = poses[r.index]
+            if covariances is not None and covariances.get(r.index) is not None:
+                r.covariance = covariances[r.index]
 
     def save_index(self) -> None:
         K = self.intrinsics
@@ -313,6 +326,7 @@ class KeyFrameStore:
                     np.array(r["bias"]),
                     r["file"],
                     r.get("visual", True),
+                    np.array(r["covariance"]) if r.get("covariance") is not None else None,
                 )
             )
         return store

@@ -59,8 +59,12 @@ MIN_LAYER = 20
 """Points the plate's top layer needs for the measurement."""
 
 
-def frame_observations(depth, K, T_world_cam, box_min, box_max, depth_noise: float) -> PlateObservations:
-    """The pixels of one key frame whose points fall in the box, with their rays and noise."""
+def frame_observations(
+    depth, K, T_world_cam, box_min, box_max, depth_noise: float, keyframe: int = -1, pose_cov=None
+) -> PlateObservations:
+    """The pixels of one key frame whose points fall in the box, with their rays and noise; ``keyframe``
+    (its index) and ``pose_cov`` (its pose error as a world-frame correction, 6x6:
+    :func:`~.plate_poses.camera_pose_cov`) go with its view to the box fit's pose correction."""
     z = np.asarray(depth, float)
     H, W = z.shape
     v, u = np.mgrid[0:H, 0:W]
@@ -87,7 +91,7 @@ def frame_observations(depth, K, T_world_cam, box_min, box_max, depth_noise: flo
     inb = np.all((P >= box_min) & (P <= box_max), axis=1)
     sig = depth_noise * zz**2 / np.maximum(cos, MIN_COS)
     lat = LATERAL_PX * zz / K.fx
-    view = crop_view(depth, K, T_world_cam, box_min, box_max, depth_noise)
+    view = crop_view(depth, K, T_world_cam, box_min, box_max, depth_noise, keyframe, pose_cov)
     return PlateObservations(P[inb], ray_c[inb] @ R.T, sig[inb], lat[inb], [view] if view is not None else [])
 
 
@@ -141,18 +145,23 @@ def _top_height(z: np.ndarray, sv: np.ndarray, band: float) -> float:
 
 
 def plate_fit(
-    obs: PlateObservations, top_band: float = 0.015, yaw_scan: float = np.radians(12)
+    obs: PlateObservations,
+    top_band: float = 0.015,
+    yaw_scan: float = np.radians(12),
+    pose_correction: bool = True,
 ) -> BoxFit | None:
     """The plate's box fitted to the key frames' depth images (:func:`~.plate_fit.fit_box`), started from
     the points' measurement (:func:`plate_corners_points`) and its labels grown by the median horizontal
     smear of the points; None without enough points. ``ok`` False (with the reason) when the box is not
-    determined by the views: the caller reports it, it does not guess."""
+    determined by the views: the caller reports it, it does not guess. ``pose_correction``: a rigid
+    correction per pass of the route fitted with the box, where the views carry their pose covariance."""
     c0 = plate_corners_points(obs, top_band, yaw_scan)
     if c0 is None:
         return None
     smear = float(np.median(obs.sigma_ray * np.linalg.norm(obs.rays[:, :2], axis=1)))
     region = (obs.points[:, :2].min(0), obs.points[:, :2].max(0))
-    return fit_box(obs.views, params_from_corners(c0, 0.0), smear, region=region)
+    p0 = params_from_corners(c0, 0.0)
+    return fit_box(obs.views, p0, smear, region=region, pose_correction=pose_correction)
 
 
 def plate_corners_ml(
