@@ -382,17 +382,7 @@ def _seams_on(P, N, tree, edge, plane, s, r, r_fine, viewpoints):
     seams: list[SeamPolyline] = []
     if len(cand):
         R = s.class_radius(r, r_fine)
-        lab, appr = classify_edges(
-            P,
-            N,
-            tree,
-            cand,
-            R,
-            min_crease_angle=s.min_crease_angle,
-            groove_max_angle=s.groove_max_angle,
-            viewpoints=viewpoints,
-            max_incidence=s.max_incidence,
-        )
+        lab, appr = classify_edges(P, N, tree, cand, R, s.classifying(), viewpoints=viewpoints)
         labels[cand] = lab
         keep = np.isin(lab, [WELDABLE[j] for j in s.joints]) & ~on_support(P, tree, support, P[cand], R)
         cfg = s.chain(r, r_fine)

@@ -78,17 +78,7 @@ def fine_candidates(
     """The edge points ``cand`` (labelled ``labels`` at the stage's scale) classified again within
     ``radius``: returns the indices (into ``cand``) of those weldable (``s.joints``) at this radius and
     not at the stage's, their labels and approach directions."""
-    lab, appr = classify_edges(
-        P,
-        N,
-        tree,
-        cand,
-        radius,
-        min_crease_angle=s.min_crease_angle,
-        groove_max_angle=s.groove_max_angle,
-        viewpoints=viewpoints,
-        max_incidence=s.max_incidence,
-    )
+    lab, appr = classify_edges(P, N, tree, cand, radius, s.classifying(), viewpoints=viewpoints)
     weld = [WELDABLE[j] for j in s.joints]
     new = np.isin(lab, weld) & ~np.isin(labels, [CONCAVE, GROOVE])
     i = np.flatnonzero(new)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from weldcell.sdk.errors import DataError
 
+from .candidates import Classifying
 from .model import WELDABLE, _positive
 
 
@@ -109,6 +110,14 @@ class SeamSettings:
         ``r_fine`` of the fine spacing, but at least the eq. 11 radius ``r`` (which reaches across an
         anisotropic scan's coarse spacing)."""
         return max(self.class_radius_factor * r_fine, r)
+
+    def classifying(self) -> Classifying:
+        """The edge classification's settings (:func:`~.candidates.classify_edges`) from this object."""
+        return Classifying(
+            min_crease_angle=self.min_crease_angle,
+            groove_max_angle=self.groove_max_angle,
+            max_incidence=self.max_incidence,
+        )
 
     def chain(self, r: float, r_fine: float | None = None) -> ChainSettings:
         """The chaining settings for eq. 11 radius ``r`` (m) and ``r_fine`` (m, default r): the radius
